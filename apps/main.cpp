@@ -1,0 +1,303 @@
+// flashtwin command line: thin argument parsing over the libraries.
+// Exit codes: 0 success, 1 the job ran but failed or refused, 2 bad input.
+#include <CLI/CLI.hpp>
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "flashtwin/core/errors.hpp"
+#include "flashtwin/core/io.hpp"
+#include "flashtwin/core/robot.hpp"
+#include "flashtwin/pipeline/scenario.hpp"
+#include "flashtwin/planner/ik.hpp"
+#include "flashtwin/planner/kinematics.hpp"
+#include "flashtwin/planner/workspace.hpp"
+#include "flashtwin/sim/cell.hpp"
+
+#ifndef FLASHTWIN_SOURCE_DIR
+#define FLASHTWIN_SOURCE_DIR "."
+#endif
+
+namespace ft = flashtwin;
+using json = nlohmann::json;
+
+namespace {
+
+constexpr int kExitOk = 0, kExitFailed = 1, kExitBadInput = 2;
+
+std::string default_robot_path() {
+  const char* home = std::getenv("FLASHTWIN_HOME");
+  const std::string root = home ? home : FLASHTWIN_SOURCE_DIR;
+  return root + "/models/robots/ft6.yaml";
+}
+
+// Whitespace- or comma-separated numbers of an option value, exactly n of them.
+std::vector<double> parse_numbers(const std::string& text, std::size_t n, const std::string& what) {
+  std::string s = text;
+  for (char& c : s)
+    if (c == ',' || c == ';' || c == '[' || c == ']') c = ' ';
+  std::istringstream is(s);
+  std::vector<double> v;
+  std::string tok;
+  while (is >> tok) {
+    char* end = nullptr;
+    const double x = std::strtod(tok.c_str(), &end);
+    if (end == tok.c_str() || *end != '\0')
+      throw ft::ArgumentError(what + ": expected numbers, got '" + tok + "'");
+    if (!std::isfinite(x)) throw ft::ArgumentError(what + ": expected finite numbers, got " + tok);
+    v.push_back(x);
+  }
+  if (v.size() != n)
+    throw ft::ArgumentError(what + ": expected " + std::to_string(n) + " numbers, got " +
+                            std::to_string(v.size()));
+  return v;
+}
+
+ft::Vector6 to_q(const std::vector<double>& v, bool degrees) {
+  ft::Vector6 q;
+  for (int i = 0; i < ft::kNumJoints; ++i) q[i] = degrees ? v[i] * M_PI / 180 : v[i];
+  return q;
+}
+
+json pose_json(const ft::Pose& X) {
+  const auto m = ft::to_row_major(X);
+  return json(std::vector<double>(m.begin(), m.end()));
+}
+
+void print_pose(const char* name, const ft::Pose& X) {
+  std::printf("%s =\n", name);
+  const Eigen::Matrix4d M = X.matrix();
+  for (int r = 0; r < 4; ++r)
+    std::printf("  [% .9f % .9f % .9f % .9f]\n", M(r, 0), M(r, 1), M(r, 2), M(r, 3));
+}
+
+struct Common {
+  std::string robot = default_robot_path();
+  bool json = false;
+};
+
+int cmd_fk(const Common& c, const std::string& q_text, bool degrees) {
+  const ft::RobotModel robot = ft::load_robot(c.robot);
+  const ft::Vector6 q = to_q(parse_numbers(q_text, 6, "--q"), degrees);
+  const ft::Pose X_BE = ft::planner::fk_flange(robot, q);
+  const ft::Pose X_BT = X_BE * robot.tool.X_ET;
+  const auto sing = ft::planner::check_singularity(robot, q);
+  const bool inside = robot.within_limits(q);
+  if (!inside) spdlog::warn("configuration outside the joint limits of {}", c.robot);
+  if (c.json) {
+    json j;
+    j["q"] = std::vector<double>(q.data(), q.data() + 6);
+    j["X_BE"] = pose_json(X_BE);
+    j["X_BT"] = pose_json(X_BT);
+    j["within_limits"] = inside;
+    j["manipulability"] = sing.manipulability;
+    std::cout << j.dump() << "\n";
+  } else {
+    print_pose("X_BE (flange in base)", X_BE);
+    print_pose("X_BT (tool in base)", X_BT);
+    std::printf("within limits: %s, manipulability: %.6g\n", inside ? "yes" : "NO",
+                sing.manipulability);
+  }
+  return kExitOk;
+}
+
+int cmd_ik(const Common& c, const std::string& pose_text, bool tool, bool all,
+           const std::string& ref_text, bool degrees) {
+  const ft::RobotModel robot = ft::load_robot(c.robot);
+  const auto v = parse_numbers(pose_text, 16, "--pose");
+  std::array<double, 16> m{};
+  std::copy(v.begin(), v.end(), m.begin());
+  const ft::Pose X = ft::pose_from_row_major(m, "--pose", 1e-6);
+  ft::planner::IkParams p;
+  p.within_limits_only = !all;
+  if (!ref_text.empty()) p.q_ref = to_q(parse_numbers(ref_text, 6, "--ref"), degrees);
+  const auto res = tool ? ft::planner::ik_tool(robot, X, p) : ft::planner::ik_flange(robot, X, p);
+  const double scale = degrees ? 180 / M_PI : 1.0;
+  if (c.json) {
+    json j;
+    j["status"] = ft::planner::to_string(res.status);
+    j["message"] = res.message;
+    json sols = json::array(), branches = json::array();
+    for (const auto& s : res.solutions) {
+      std::vector<double> q(6);
+      for (int i = 0; i < 6; ++i) q[i] = s.q[i] * scale;
+      sols.push_back(q);
+      branches.push_back(s.branch.name());
+    }
+    j["solutions"] = sols;
+    j["branches"] = branches;
+    j["units"] = degrees ? "deg" : "rad";
+    j["discarded_by_limits"] = res.discarded_by_limits;
+    j["wrist_singular"] = res.wrist_singular;
+    j["shoulder_singular"] = res.shoulder_singular;
+    j["elbow_singular"] = res.elbow_singular;
+    std::cout << j.dump() << "\n";
+  } else {
+    std::printf("status: %s (%s)\n", ft::planner::to_string(res.status).c_str(),
+                res.message.c_str());
+    for (const auto& s : res.solutions) {
+      std::printf("  %-17s", s.branch.name().c_str());
+      for (int i = 0; i < 6; ++i) std::printf(" % .9f", s.q[i] * scale);
+      std::printf("\n");
+    }
+  }
+  return res.ok() ? kExitOk : kExitFailed;
+}
+
+int cmd_workspace(const Common& c, int samples, std::uint64_t seed, bool tool,
+                  const std::string& out) {
+  const ft::RobotModel robot = ft::load_robot(c.robot);
+  ft::planner::WorkspaceParams p;
+  p.samples = samples;
+  p.seed = seed;
+  p.tool_point = tool;
+  const auto ws = ft::planner::sample_workspace(robot, p);
+  ft::ensure_directory(out);
+  const std::string png = (std::filesystem::path(out) / "workspace.png").string();
+  ft::write_png(png, ft::planner::plot_workspace(ws, robot.name + (tool ? " TCP" : " flange")));
+  json j;
+  j["robot"] = robot.name;
+  j["point"] = tool ? "tcp" : "flange";
+  j["samples"] = samples;
+  j["seed"] = seed;
+  j["max_reach_m"] = ws.max_reach;
+  j["max_horizontal_reach_m"] = ws.max_horizontal_reach;
+  j["min_m"] = {ws.min.x(), ws.min.y(), ws.min.z()};
+  j["max_m"] = {ws.max.x(), ws.max.y(), ws.max.z()};
+  j["plot"] = png;
+  ft::write_text_file((std::filesystem::path(out) / "workspace.json").string(), j.dump(2) + "\n");
+  if (c.json)
+    std::cout << j.dump() << "\n";
+  else
+    std::printf("max reach %.4f m (horizontal %.4f m) over %d samples; plot: %s\n",
+                ws.max_reach, ws.max_horizontal_reach, samples, png.c_str());
+  return kExitOk;
+}
+
+int cmd_cell(const Common& c, const std::string& scenario_path, const std::string& out) {
+  const ft::pipeline::Scenario sc = ft::pipeline::load_scenario(scenario_path);
+  const auto files = ft::sim::write_cell(sc.robot, sc.cell, out);
+  const auto sum = ft::sim::check_mjcf(files.mjcf);
+  if (c.json) {
+    json j;
+    j["scenario"] = sc.name;
+    j["mjcf"] = files.mjcf;
+    j["urdf"] = files.urdf;
+    j["nbody"] = sum.nbody;
+    j["njnt"] = sum.njnt;
+    j["nu"] = sum.nu;
+    j["ncam"] = sum.ncam;
+    j["timestep"] = sum.timestep;
+    std::cout << j.dump() << "\n";
+  } else {
+    std::printf("cell of scenario '%s' written: %s (MuJoCo: %d bodies, %d joints, %d actuators, "
+                "%d cameras)\nURDF: %s\nview it: mujoco-simulate %s\n",
+                sc.name.c_str(), files.mjcf.c_str(), sum.nbody, sum.njnt, sum.nu, sum.ncam,
+                files.urdf.c_str(), files.mjcf.c_str());
+  }
+  return kExitOk;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "flashtwin: digital twin of a robotic flash-grinding cell (MuJoCo cell, virtual "
+      "scanner, perception, planning, grinding).\nExit codes: 0 success, 1 ran but failed or "
+      "refused, 2 bad input."};
+  app.require_subcommand(1);
+  app.set_version_flag("--version", "flashtwin 0.1.0");
+  int verbosity = 0;
+  bool quiet = false;
+  app.add_flag("-v,--verbose", verbosity, "More log output (repeat for trace)");
+  app.add_flag("-q,--quiet", quiet, "Only warnings and errors on stderr");
+
+  Common common;
+  auto add_robot = [&](CLI::App* sub) {
+    sub->add_option("--robot", common.robot, "Robot description YAML")
+        ->capture_default_str();
+  };
+
+  auto* fk = app.add_subcommand("fk", "Forward kinematics: flange pose X_BE for joint angles");
+  std::string q_text;
+  bool deg = false;
+  fk->add_option("--q", q_text, "Six joint angles \"q1 .. q6\" [rad, or deg with --deg]")
+      ->required();
+  fk->add_flag("--deg", deg, "Angles in degrees");
+  fk->add_flag("--json", common.json, "Print JSON: X_BE and X_BT as 16 row-major numbers");
+  add_robot(fk);
+
+  auto* ik = app.add_subcommand(
+      "ik", "Inverse kinematics: all joint solutions (up to 8) for a flange or tool pose");
+  std::string pose_text, ref_text;
+  bool ik_tool = false, ik_all = false;
+  ik->add_option("--pose", pose_text, "16 numbers, row-major 4x4 X_BE (or X_BT with --tool) [m]")
+      ->required();
+  ik->add_flag("--tool", ik_tool, "The pose is the tool frame X_BT");
+  ik->add_flag("--all", ik_all, "Also list solutions outside the joint limits");
+  ik->add_option("--ref", ref_text, "Reference angles \"q1 .. q6\": nearest 2pi-equivalents");
+  ik->add_flag("--deg", deg, "Print (and read --ref) in degrees");
+  ik->add_flag("--json", common.json, "Print JSON {\"solutions\": [[q1..q6], ...], ...}");
+  add_robot(ik);
+
+  auto* ws = app.add_subcommand(
+      "workspace", "Monte Carlo workspace: max reach and a PNG plot (top and side views)");
+  int samples = 100000;
+  std::uint64_t seed = 1;
+  bool ws_tool = false;
+  std::string out;
+  ws->add_option("--samples", samples, "Random joint configurations")->capture_default_str();
+  ws->add_option("--seed", seed, "Random seed")->capture_default_str();
+  ws->add_flag("--tool", ws_tool, "Sample the tool point instead of the flange");
+  ws->add_option("-o,--output", out, "Output folder (workspace.png, workspace.json)")->required();
+  ws->add_flag("--json", common.json, "Print the result as JSON");
+  add_robot(ws);
+
+  auto* cell = app.add_subcommand(
+      "cell", "Write the scenario's MuJoCo cell (cell.xml) and the robot's URDF");
+  std::string scenario;
+  cell->add_option("scenario", scenario, "Scenario YAML")->required();
+  cell->add_option("-o,--output", out, "Output folder")->required();
+  cell->add_flag("--json", common.json, "Print a JSON summary");
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForAllHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForVersion& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    app.exit(e);
+    return kExitBadInput;
+  }
+
+  auto logger = spdlog::stderr_color_mt("flashtwin");
+  spdlog::set_default_logger(logger);
+  spdlog::set_pattern("[%l] %v");
+  spdlog::set_level(quiet ? spdlog::level::warn
+                          : verbosity >= 2 ? spdlog::level::trace
+                          : verbosity == 1 ? spdlog::level::debug
+                                           : spdlog::level::info);
+  try {
+    if (*fk) return cmd_fk(common, q_text, deg);
+    if (*ik) return cmd_ik(common, pose_text, ik_tool, ik_all, ref_text, deg);
+    if (*ws) return cmd_workspace(common, samples, seed, ws_tool, out);
+    if (*cell) return cmd_cell(common, scenario, out);
+  } catch (const ft::InputError& e) {
+    std::fprintf(stderr, "flashtwin: error: %s\n", e.what());
+    return kExitBadInput;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "flashtwin: failed: %s\n", e.what());
+    return kExitFailed;
+  }
+  return kExitBadInput;
+}

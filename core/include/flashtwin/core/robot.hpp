@@ -1,0 +1,81 @@
+#pragma once
+// The robot description: one file under models/robots/ (YAML) holds the standard D-H table,
+// joint limits, link inertias and the tool transform; URDF and MJCF are generated from it.
+#include <array>
+#include <string>
+
+#include "flashtwin/core/transform.hpp"
+
+namespace flashtwin {
+
+constexpr int kNumJoints = 6;
+using Vector6 = Eigen::Matrix<double, 6, 1>;
+using Matrix6 = Eigen::Matrix<double, 6, 6>;
+
+/// One row of the standard D-H table; link transform Rot_z(θ)·Trans_z(d)·Trans_x(a)·Rot_x(α).
+struct DhRow {
+  double alpha = 0;  ///< [rad]
+  double a = 0;      ///< [m]
+  double d = 0;      ///< [m]
+};
+
+/// Limits of one revolute joint.
+struct JointLimits {
+  double lower = 0, upper = 0;  ///< position [rad]
+  double velocity = 0;          ///< [rad/s]
+  double acceleration = 0;      ///< [rad/s^2]
+  double torque = 0;            ///< [N·m]
+  /// True when lower <= q <= upper (inclusive, `tol` [rad] slack).
+  bool contains(double q, double tol = 0) const { return q >= lower - tol && q <= upper + tol; }
+};
+
+/// Mass properties of a rigid body, expressed in the body's own frame.
+struct Inertial {
+  double mass = 0;                    ///< [kg]
+  Vec3 com = Vec3::Zero();            ///< centre of mass [m]
+  Vec3 inertia = Vec3::Zero();        ///< principal moments about the COM, frame-aligned [kg·m^2]
+};
+
+/// The tool (spindle + grinding burr/disc) fixed to the flange.
+struct ToolDescription {
+  std::string name = "tool";
+  Pose X_ET = Pose::Identity();  ///< tool frame {T} in flange frame {E}
+  Inertial inertial;             ///< in the flange frame {E}
+  double radius = 0.005;         ///< cutting radius of the burr/disc [m]
+  double length = 0.02;          ///< cutting length along the tool axis [m]
+};
+
+/// Immutable robot description (Model apart from Data: no state in here).
+struct RobotModel {
+  std::string name;
+  std::string source;  ///< file it was read from
+  std::array<DhRow, kNumJoints> dh;
+  std::array<JointLimits, kNumJoints> limits;
+  /// Link i's inertial in D-H frame {i} (index 0 is link 1).
+  std::array<Inertial, kNumJoints> links;
+  Inertial base;  ///< the fixed base link, in frame {0}={B}
+  ToolDescription tool;
+
+  Vector6 lower() const;
+  Vector6 upper() const;
+  /// True when every joint is within its position range (with `tol` [rad] slack).
+  bool within_limits(const Vector6& q, double tol = 0) const;
+};
+
+/// Reads and validates a robot description file.
+/// @throws IoError (missing file), ConfigError (naming the field: malformed value, lower >=
+/// upper, non-positive velocity/acceleration/torque/mass, inertia violating the triangle
+/// inequality, unknown keys).
+RobotModel load_robot(const std::string& path);
+
+/// Parses a robot description from YAML text (`name` stands in for the file in messages).
+RobotModel parse_robot(const std::string& yaml_text, const std::string& name);
+
+/// URDF text of the arm: links base_link, link1..link6, flange, tool0 (tool frame {T});
+/// revolute joints joint1..joint6 with the description's limits. Joint zero = D-H θ zero.
+std::string robot_urdf(const RobotModel& robot);
+
+/// The constant part of D-H link i (0-based): Trans_z(d)·Trans_x(a)·Rot_x(α).
+Pose dh_constant(const DhRow& row);
+
+}  // namespace flashtwin

@@ -1,0 +1,32 @@
+#pragma once
+// RAII owners of MuJoCo's C handles. Only sim/ and its tests include this (DESIGN.md: only sim
+// sees MuJoCo).
+#include <mujoco/mujoco.h>
+
+#include <memory>
+#include <string>
+
+namespace flashtwin::sim {
+
+struct MjModelDeleter {
+  void operator()(mjModel* m) const { mj_deleteModel(m); }
+};
+struct MjDataDeleter {
+  void operator()(mjData* d) const { mj_deleteData(d); }
+};
+using MjModelPtr = std::unique_ptr<mjModel, MjModelDeleter>;
+using MjDataPtr = std::unique_ptr<mjData, MjDataDeleter>;
+
+/// Compiles an MJCF file. @throws InputError "<path>: MuJoCo: <message>".
+MjModelPtr load_mjcf_file(const std::string& path);
+
+/// Compiles MJCF text held in memory (tests, generated cells); `name` appears in errors.
+MjModelPtr load_mjcf_string(const std::string& xml, const std::string& name = "model.xml");
+
+/// Fresh mjData for a model.
+MjDataPtr make_data(const mjModel* m);
+
+/// Id of a named object or throws InputError naming what was expected.
+int require_id(const mjModel* m, mjtObj type, const std::string& name);
+
+}  // namespace flashtwin::sim

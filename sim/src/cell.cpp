@@ -1,0 +1,204 @@
+#include "flashtwin/sim/cell.hpp"
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <sstream>
+
+#include "flashtwin/core/errors.hpp"
+#include "flashtwin/core/io.hpp"
+#include "flashtwin/sim/mujoco_handles.hpp"
+
+namespace flashtwin::sim {
+
+namespace {
+
+std::string num(double v) {
+  char b[40];
+  std::snprintf(b, sizeof b, "%.17g", v);
+  return b;
+}
+
+std::string pose_attrs(const Pose& X) {
+  return "pos=\"" + vec3_string(X.translation()) + "\" quat=\"" + quat_wxyz_string(X.linear()) +
+         "\"";
+}
+
+std::string inertial_xml(const Inertial& in, const Pose& X_body_frame) {
+  // The inertial is given in a frame fixed to the body; MJCF wants it in the body frame.
+  return "<inertial pos=\"" + vec3_string(X_body_frame * in.com) + "\" quat=\"" +
+         quat_wxyz_string(X_body_frame.linear()) + "\" mass=\"" + num(in.mass) +
+         "\" diaginertia=\"" + vec3_string(in.inertia) + "\"/>";
+}
+
+// Visual capsules along the D-H offsets of a link (d along the joint axis z, then a along x),
+// and a motor housing around the joint axis. Visual only: the process model does contact.
+std::string link_geoms(const DhRow& row, double radius, const char* material) {
+  std::ostringstream os;
+  const std::string common = std::string(" contype=\"0\" conaffinity=\"0\" group=\"1\" material=\"") +
+                             material + "\"";
+  os << "<geom type=\"cylinder\" size=\"" << num(radius * 1.15) << " "
+     << num(radius * 1.1) << "\" " << common << "/>";
+  if (std::abs(row.d) > 1e-6)
+    os << "<geom type=\"capsule\" fromto=\"0 0 0 0 0 " << num(row.d) << "\" size=\""
+       << num(radius) << "\"" << common << "/>";
+  if (std::abs(row.a) > 1e-6)
+    os << "<geom type=\"capsule\" fromto=\"0 0 " << num(row.d) << " " << num(row.a) << " 0 "
+       << num(row.d) << "\" size=\"" << num(radius) << "\"" << common << "/>";
+  return os.str();
+}
+
+}  // namespace
+
+std::string arm_mjcf(const RobotModel& robot, const Pose& X_WB, const CellSpec& spec) {
+  std::ostringstream os;
+  const double radii[kNumJoints] = {0.08, 0.07, 0.06, 0.05, 0.045, 0.04};
+  os << "    <body name=\"base\" " << pose_attrs(X_WB) << ">\n"
+     << "      " << inertial_xml(robot.base, Pose::Identity()) << "\n"
+     << "      <geom type=\"cylinder\" fromto=\"0 0 " << num(-spec.base_height) << " 0 0 -0.09\" "
+     << "size=\"0.11\" material=\"robot\" group=\"1\"/>\n";
+  std::string indent = "      ";
+  for (int i = 0; i < kNumJoints; ++i) {
+    // Body i is D-H frame {i-1} turned by joint i about its z axis; it sits at the constant
+    // part of the previous link's transform.
+    const Pose X_parent = i == 0 ? Pose::Identity() : dh_constant(robot.dh[i - 1]);
+    const JointLimits& L = robot.limits[i];
+    os << indent << "<body name=\"link" << i + 1 << "\" " << pose_attrs(X_parent) << ">\n"
+       << indent << "  <joint name=\"joint" << i + 1 << "\" type=\"hinge\" axis=\"0 0 1\" "
+       << "limited=\"true\" range=\"" << num(L.lower) << " " << num(L.upper) << "\" damping=\""
+       << num(spec.damping[i]) << "\" armature=\"0.05\"/>\n"
+       << indent << "  " << inertial_xml(robot.links[i], dh_constant(robot.dh[i])) << "\n"
+       << indent << "  " << link_geoms(robot.dh[i], radii[i], i % 2 ? "robot" : "robot_dark")
+       << "\n";
+    indent += "  ";
+  }
+  const Pose C6 = dh_constant(robot.dh[5]);
+  const ToolDescription& tool = robot.tool;
+  const double tool_len = tool.X_ET.translation().norm();
+  // The tool body sits at the flange {E}; its frame is {E}.
+  os << indent << "<site name=\"flange\" " << pose_attrs(C6)
+     << " size=\"0.01\" rgba=\"0.9 0.1 0.1 1\" group=\"3\"/>\n"
+     << indent << "<body name=\"tool\" " << pose_attrs(C6) << ">\n"
+     << indent << "  " << inertial_xml(tool.inertial, Pose::Identity()) << "\n"
+     << indent << "  <geom name=\"spindle\" type=\"cylinder\" fromto=\"0 0 0 0 0 "
+     << num(std::max(0.0, tool_len - tool.length)) << "\" size=\"0.035\" contype=\"0\" "
+     << "conaffinity=\"0\" group=\"1\" material=\"spindle\"/>\n"
+     << indent << "  <geom name=\"burr\" type=\"capsule\" fromto=\"" << vec3_string(tool.X_ET * Vec3(0, 0, -tool.length)) << " "
+     << vec3_string(tool.X_ET * Vec3(0, 0, -tool.radius)) << "\" size=\"" << num(tool.radius)
+     << "\" contype=\"0\" conaffinity=\"0\" group=\"1\" material=\"burr\"/>\n"
+     << indent << "  <site name=\"tcp\" " << pose_attrs(tool.X_ET)
+     << " size=\"0.006\" rgba=\"0.1 0.9 0.1 1\" group=\"3\"/>\n"
+     << indent << "</body>\n";
+  for (int i = kNumJoints - 1; i >= 0; --i) {
+    indent.resize(indent.size() - 2);
+    os << indent << "</body>\n";
+  }
+  os << "    </body>\n";
+  return os.str();
+}
+
+std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec) {
+  std::ostringstream os;
+  const Vec3 t = spec.X_WTable.translation();
+  const Vec3& ts = spec.table_size;
+  const Vec3 b = spec.X_WB.translation();
+  const double pedestal_top = b.z() - spec.base_height;
+  os << "<mujoco model=\"flashtwin_cell\">\n"
+     << "  <!-- Generated by flashtwin from robot " << robot.source
+     << ". Frames: world {W}; robot base {B} = body base; flange {E} = site flange; tool {T} = "
+        "site tcp; casting {C} = body casting. -->\n"
+     << "  <compiler angle=\"radian\" autolimits=\"true\"/>\n"
+     << "  <option timestep=\"" << num(spec.timestep) << "\" gravity=\"0 0 -9.81\"/>\n"
+     << "  <visual><global offwidth=\"1920\" offheight=\"1080\"/>"
+     << "<quality shadowsize=\"4096\"/><headlight ambient=\"0.35 0.35 0.35\"/></visual>\n"
+     << "  <asset>\n"
+     << "    <texture name=\"floor\" type=\"2d\" builtin=\"checker\" rgb1=\"0.55 0.57 0.6\" "
+        "rgb2=\"0.45 0.47 0.5\" width=\"512\" height=\"512\"/>\n"
+     << "    <material name=\"floor\" texture=\"floor\" texrepeat=\"8 8\" reflectance=\"0.05\"/>\n"
+     << "    <material name=\"robot\" rgba=\"0.95 0.55 0.1 1\"/>\n"
+     << "    <material name=\"robot_dark\" rgba=\"0.25 0.25 0.28 1\"/>\n"
+     << "    <material name=\"spindle\" rgba=\"0.7 0.72 0.75 1\"/>\n"
+     << "    <material name=\"burr\" rgba=\"0.85 0.8 0.3 1\"/>\n"
+     << "    <material name=\"table\" rgba=\"0.35 0.4 0.45 1\"/>\n"
+     << "    <material name=\"casting\" rgba=\"0.42 0.4 0.38 1\"/>\n"
+     << "  </asset>\n"
+     << "  <worldbody>\n"
+     << "    <light name=\"key\" directional=\"true\" pos=\"1 -1 3\" dir=\"-0.3 0.3 -1\" "
+        "diffuse=\"0.6 0.6 0.6\" castshadow=\"true\"/>\n"
+     << "    <light name=\"fill\" directional=\"true\" pos=\"-1 1 3\" dir=\"0.3 -0.2 -1\" "
+        "diffuse=\"0.3 0.3 0.3\" castshadow=\"false\"/>\n"
+     << "    <geom name=\"floor\" type=\"plane\" size=\"3 3 0.1\" material=\"floor\"/>\n"
+     << "    <geom name=\"pedestal\" type=\"box\" pos=\"" << num(b.x()) << " " << num(b.y()) << " "
+     << num(pedestal_top / 2) << "\" size=\"0.2 0.2 " << num(pedestal_top / 2)
+     << "\" material=\"table\"/>\n";
+  os << arm_mjcf(robot, spec.X_WB, spec);
+  os << "    <body name=\"worktable\" " << pose_attrs(spec.X_WTable) << ">\n"
+     << "      <geom name=\"table_top\" type=\"box\" pos=\"0 0 " << num(-ts.z() / 2)
+     << "\" size=\"" << num(ts.x() / 2) << " " << num(ts.y() / 2) << " " << num(ts.z() / 2)
+     << "\" material=\"table\"/>\n";
+  // Four legs down to the floor.
+  const double leg_h = t.z() - ts.z();
+  for (int sx = -1; sx <= 1; sx += 2)
+    for (int sy = -1; sy <= 1; sy += 2)
+      os << "      <geom type=\"box\" pos=\"" << num(sx * (ts.x() / 2 - 0.04)) << " "
+         << num(sy * (ts.y() / 2 - 0.04)) << " " << num(-ts.z() - leg_h / 2)
+         << "\" size=\"0.03 0.03 " << num(leg_h / 2) << "\" material=\"table\"/>\n";
+  os << "    </body>\n";
+  const Vec3& cs = spec.casting_size;
+  os << "    <body name=\"casting\" " << pose_attrs(spec.X_WC) << ">\n"
+     << "      <geom name=\"casting_placeholder\" type=\"box\" pos=\"0 0 " << num(cs.z() / 2)
+     << "\" size=\"" << num(cs.x() / 2) << " " << num(cs.y() / 2) << " " << num(cs.z() / 2)
+     << "\" material=\"casting\"/>\n"
+     << "    </body>\n";
+  // Named cameras aimed at the casting (targetbody keeps them aimed when it moves).
+  const Vec3 c = spec.X_WC.translation();
+  auto camera = [&](const char* name, const Vec3& offset) {
+    os << "    <camera name=\"" << name << "\" mode=\"targetbody\" target=\"casting\" pos=\""
+       << vec3_string(c + offset) << "\" fovy=\"45\"/>\n";
+  };
+  camera("overview", Vec3(1.2, -1.4, 1.0));
+  camera("front", Vec3(1.1, 0.0, 0.5));
+  camera("top", Vec3(0.0, -0.01, 1.2));
+  camera("casting_closeup", Vec3(0.25, -0.35, 0.35));
+  os << "  </worldbody>\n"
+     << "  <actuator>\n";
+  for (int i = 0; i < kNumJoints; ++i) {
+    const JointLimits& L = robot.limits[i];
+    os << "    <position name=\"act" << i + 1 << "\" joint=\"joint" << i + 1 << "\" kp=\""
+       << num(spec.kp[i]) << "\" ctrlrange=\"" << num(L.lower) << " " << num(L.upper)
+       << "\" forcerange=\"" << num(-L.torque) << " " << num(L.torque) << "\"/>\n";
+  }
+  os << "  </actuator>\n"
+     << "  <sensor>\n"
+     << "    <force name=\"flange_force\" site=\"flange\"/>\n"
+     << "    <torque name=\"flange_torque\" site=\"flange\"/>\n"
+     << "  </sensor>\n"
+     << "</mujoco>\n";
+  return os.str();
+}
+
+ModelSummary check_mjcf(const std::string& path) {
+  const MjModelPtr m = load_mjcf_file(path);
+  ModelSummary s;
+  s.nbody = m->nbody;
+  s.njnt = m->njnt;
+  s.nu = m->nu;
+  s.ngeom = m->ngeom;
+  s.nsite = m->nsite;
+  s.ncam = m->ncam;
+  s.timestep = m->opt.timestep;
+  return s;
+}
+
+CellFiles write_cell(const RobotModel& robot, const CellSpec& spec, const std::string& dir) {
+  ensure_directory(dir);
+  CellFiles f;
+  f.mjcf = (std::filesystem::path(dir) / "cell.xml").string();
+  f.urdf = (std::filesystem::path(dir) / "robot.urdf").string();
+  write_text_file(f.mjcf, cell_mjcf(robot, spec));
+  write_text_file(f.urdf, robot_urdf(robot));
+  check_mjcf(f.mjcf);
+  return f;
+}
+
+}  // namespace flashtwin::sim

@@ -1,0 +1,39 @@
+#include "flashtwin/sim/mujoco_handles.hpp"
+
+#include <cstring>
+
+#include "flashtwin/core/errors.hpp"
+
+namespace flashtwin::sim {
+
+MjModelPtr load_mjcf_file(const std::string& path) {
+  char err[1024] = "";
+  mjModel* m = mj_loadXML(path.c_str(), nullptr, err, sizeof err);
+  if (!m) throw InputError(path + ": MuJoCo cannot load the model: " + err);
+  return MjModelPtr(m);
+}
+
+MjModelPtr load_mjcf_string(const std::string& xml, const std::string& name) {
+  // mjVFS holds fixed-size name tables (megabytes): keep it on the heap.
+  auto vfs = std::make_unique<mjVFS>();
+  mj_defaultVFS(vfs.get());
+  if (mj_makeEmptyFileVFS(vfs.get(), name.c_str(), static_cast<int>(xml.size())) != 0)
+    throw InputError(name + ": cannot place the model in MuJoCo's virtual file system");
+  const int id = mj_findFileVFS(vfs.get(), name.c_str());
+  std::memcpy(vfs->filedata[id], xml.data(), xml.size());
+  char err[1024] = "";
+  mjModel* m = mj_loadXML(name.c_str(), vfs.get(), err, sizeof err);
+  mj_deleteVFS(vfs.get());
+  if (!m) throw InputError(name + ": MuJoCo cannot load the model: " + err);
+  return MjModelPtr(m);
+}
+
+MjDataPtr make_data(const mjModel* m) { return MjDataPtr(mj_makeData(m)); }
+
+int require_id(const mjModel* m, mjtObj type, const std::string& name) {
+  const int id = mj_name2id(m, type, name.c_str());
+  if (id < 0) throw InputError("model: expected an object named '" + name + "', found none");
+  return id;
+}
+
+}  // namespace flashtwin::sim
