@@ -44,8 +44,9 @@ struct IkParams {
   /// Distance [m] below which the wrist centre counts as on the shoulder singular surface;
   /// also the slack for poses at the edge of the reach.
   double length_tol = 1e-9;
-  /// |sin ψ| below which the elbow counts as stretched/folded (singular) [-].
-  double elbow_tol = 1e-9;
+  /// |sin ψ| below which the elbow counts as stretched/folded (singular) [-]. ψ comes from an
+  /// acos, which turns round-off ε into sqrt(2ε) ≈ 1e-8 at the singularity: hence 1e-7.
+  double elbow_tol = 1e-7;
 };
 
 /// What the solver found, including why there is no solution.

@@ -10,11 +10,14 @@ namespace flashtwin::sim {
 
 /// Geometry of the cell (world frame {W}: z up, floor at z = 0).
 struct CellSpec {
-  Pose X_WB = Pose::Identity();   ///< robot base {B} (D-H frame 0, at the shoulder) in {W}
-  double base_height = 0.35;      ///< [m] robot base housing below {B}, on top of the pedestal
-  Pose X_WTable = Pose::Identity();  ///< worktable top centre in {W} (z = top surface)
-  Vec3 table_size{0.9, 0.8, 0.05};   ///< [m] top plate extents (x, y, thickness)
-  Pose X_WC = Pose::Identity();      ///< casting frame {C} in {W}
+  /// Robot base {B} (D-H frame 0, at the shoulder) in {W}.
+  Pose X_WB = Pose(Eigen::Translation3d(0.0, 0.0, 0.95));
+  double base_height = 0.35;  ///< [m] robot base housing below {B}, on top of the pedestal
+  /// Worktable top centre in {W} (z = top surface).
+  Pose X_WTable = Pose(Eigen::Translation3d(0.75, 0.0, 0.78));
+  Vec3 table_size{0.8, 0.9, 0.05};  ///< [m] top plate extents (x, y, thickness)
+  /// Casting frame {C} in {W}.
+  Pose X_WC = Pose(Eigen::Translation3d(0.70, 0.0, 0.78));
   Vec3 casting_size{0.25, 0.18, 0.06};  ///< [m] placeholder box extents, {C} at its bottom centre
   double timestep = 0.001;           ///< [s] MuJoCo step (≥ 1 kHz)
   /// Position-actuator stiffness per joint [N·m/rad]; torque-limited by the robot's limits.
