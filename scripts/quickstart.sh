@@ -1,0 +1,19 @@
+#!/usr/bin/env bash
+# The main job: install what is missing, build, and run the default scenario.
+# For now (issue 2) that is the cell and the kinematics demo; outputs go to out/default/.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scripts/setup.sh
+FT=build/apps/flashtwin
+OUT=out/default
+mkdir -p "$OUT"
+$FT cell scenarios/default.yaml -o "$OUT"
+$FT workspace --samples 200000 -o "$OUT"
+echo "--- forward kinematics at q = (0, -60, 30, 0, 45, 0) deg:"
+$FT fk --deg --q "0 -60 30 0 45 0" | tee "$OUT/fk.txt"
+pose=$($FT fk --deg --q "0 -60 30 0 45 0" --json | sed -E 's/.*"X_BE":\[([^]]*)\].*/\1/')
+echo "--- inverse kinematics of that flange pose (all solutions within limits, degrees):"
+$FT ik --deg --pose "$pose" | tee "$OUT/ik.txt"
+echo
+echo "Outputs in $(pwd)/$OUT: cell.xml (open with: mujoco-simulate $OUT/cell.xml), robot.urdf,"
+echo "workspace.png, workspace.json, fk.txt, ik.txt"
