@@ -24,16 +24,15 @@ if ((${#missing[@]})); then
     "${missing[@]}" >/dev/null
 fi
 
-TESTS=OFF
-BENCH=OFF
+# Options given turn targets on; without them the build folder keeps what it had.
+OPTS=()
 for a in "$@"; do
   case "$a" in
-    --tests) TESTS=ON ;;
-    --bench) BENCH=ON ;;
+    --tests) OPTS+=(-DFLASHTWIN_BUILD_TESTS=ON) ;;
+    --bench) OPTS+=(-DFLASHTWIN_BUILD_BENCH=ON) ;;
     *) echo "setup: unknown option $a (expected --tests or --bench)" >&2; exit 2 ;;
   esac
 done
 
-cmake -S . -B build -DCMAKE_BUILD_TYPE=Release -DFLASHTWIN_BUILD_TESTS=$TESTS \
-  -DFLASHTWIN_BUILD_BENCH=$BENCH >/dev/null
+cmake -S . -B build -DCMAKE_BUILD_TYPE=Release "${OPTS[@]}" >/dev/null
 cmake --build build -j2

@@ -107,6 +107,13 @@ RobotModel parse_robot(const std::string& yaml_text, const std::string& name) {
   r.tool.radius = tool.get_double("radius", 1e-4, 0.5, r.tool.radius);
   r.tool.length = tool.get_double("length", 1e-4, 0.5, r.tool.length);
 
+  if (root.has("home")) {
+    const ConfigNode home = root.at("home");
+    const auto v = home.as_doubles(kNumJoints);
+    for (int i = 0; i < kNumJoints; ++i) r.home[i] = v[i];
+    if (!r.within_limits(r.home)) home.fail("expected a configuration within the joint limits");
+  }
+
   root.check_all_used();
   return r;
 }

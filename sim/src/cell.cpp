@@ -168,7 +168,12 @@ std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec) {
        << num(spec.kp[i]) << "\" ctrlrange=\"" << num(L.lower) << " " << num(L.upper)
        << "\" forcerange=\"" << num(-L.torque) << " " << num(L.torque) << "\"/>\n";
   }
-  os << "  </actuator>\n"
+  os << "  </actuator>\n";
+  // Keyframe: the arm parked clear of the table, servos holding it there.
+  std::string home;
+  for (int i = 0; i < kNumJoints; ++i) home += (i ? " " : "") + num(robot.home[i]);
+  os << "  <keyframe><key name=\"home\" qpos=\"" << home << "\" ctrl=\"" << home
+     << "\"/></keyframe>\n"
      << "  <sensor>\n"
      << "    <force name=\"flange_force\" site=\"flange\"/>\n"
      << "    <torque name=\"flange_torque\" site=\"flange\"/>\n"

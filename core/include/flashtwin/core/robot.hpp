@@ -55,6 +55,7 @@ struct RobotModel {
   std::array<Inertial, kNumJoints> links;
   Inertial base;  ///< the fixed base link, in frame {0}={B}
   ToolDescription tool;
+  Vector6 home = Vector6::Zero();  ///< parking configuration [rad] (MJCF keyframe `home`)
 
   Vector6 lower() const;
   Vector6 upper() const;
