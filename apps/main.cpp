@@ -20,6 +20,7 @@
 #include "flashtwin/planner/kinematics.hpp"
 #include "flashtwin/planner/workspace.hpp"
 #include "flashtwin/sim/cell.hpp"
+#include "flashtwin/sim/views.hpp"
 
 #ifndef FLASHTWIN_SOURCE_DIR
 #define FLASHTWIN_SOURCE_DIR "."
@@ -183,12 +184,20 @@ int cmd_workspace(const Common& c, int samples, std::uint64_t seed, bool tool,
 
 int cmd_cell(const Common& c, const std::string& scenario_path, const std::string& out) {
   const ft::pipeline::Scenario sc = ft::pipeline::load_scenario(scenario_path);
-  const auto files = ft::sim::write_cell(sc.robot, sc.cell, out);
+  const auto setup = ft::pipeline::setup_cell(sc);
+  spdlog::info("casting: {} ({} triangles, {} flashes, flash volume {:.1f} mm^3)",
+               setup.casting.description, setup.casting.nominal.num_triangles(),
+               setup.casting.fins.size(), setup.casting.flash_volume() * 1e9);
+  const auto files = ft::sim::write_cell(sc.robot, setup.spec, setup.casting, out);
   const auto sum = ft::sim::check_mjcf(files.mjcf);
   if (c.json) {
     json j;
     j["scenario"] = sc.name;
     j["mjcf"] = files.mjcf;
+    j["cad"] = files.cad;
+    j["truth"] = files.truth;
+    j["casting"] = setup.casting.description;
+    j["flashes"] = setup.casting.fins.size();
     j["urdf"] = files.urdf;
     j["nbody"] = sum.nbody;
     j["njnt"] = sum.njnt;
@@ -198,9 +207,31 @@ int cmd_cell(const Common& c, const std::string& scenario_path, const std::strin
     std::cout << j.dump() << "\n";
   } else {
     std::printf("cell of scenario '%s' written: %s (MuJoCo: %d bodies, %d joints, %d actuators, "
-                "%d cameras)\nURDF: %s\nview it: mujoco-simulate %s\n",
+                "%d cameras)\nURDF: %s\nCAD model of the casting: %s\nground truth (scoring only): %s\n"
+                "view it: mujoco-simulate %s\n",
                 sc.name.c_str(), files.mjcf.c_str(), sum.nbody, sum.njnt, sum.nu, sum.ncam,
-                files.urdf.c_str(), files.mjcf.c_str());
+                files.urdf.c_str(), files.cad.c_str(), files.truth.c_str(), files.mjcf.c_str());
+  }
+  return kExitOk;
+}
+
+int cmd_render(const Common& c, const std::string& scenario_path, const std::string& out,
+               const std::vector<std::string>& cameras, int width, int height) {
+  const ft::pipeline::Scenario sc = ft::pipeline::load_scenario(scenario_path);
+  const auto setup = ft::pipeline::setup_cell(sc);
+  const auto files = ft::sim::write_cell(sc.robot, setup.spec, setup.casting,
+                                         (std::filesystem::path(out) / "cell").string());
+  ft::sim::RenderRequest req;
+  if (!cameras.empty()) req.cameras = cameras;
+  req.width = width;
+  req.height = height;
+  const auto paths = ft::sim::render_views(files.mjcf, req, out, "render_");
+  if (c.json) {
+    json j;
+    j["images"] = paths;
+    std::cout << j.dump() << "\n";
+  } else {
+    for (const auto& p : paths) std::printf("%s\n", p.c_str());
   }
   return kExitOk;
 }
@@ -267,6 +298,19 @@ int main(int argc, char** argv) {
   cell->add_option("-o,--output", out, "Output folder")->required();
   cell->add_flag("--json", common.json, "Print a JSON summary");
 
+  auto* render = app.add_subcommand(
+      "render", "Render the scenario's cell off-screen (OSMesa) from named cameras to PNG");
+  std::vector<std::string> cameras;
+  int width = 800, height = 600;
+  render->add_option("scenario", scenario, "Scenario YAML")->required();
+  render->add_option("-o,--output", out, "Output folder (PNGs; the cell in OUT/cell)")->required();
+  render->add_option("--camera", cameras,
+                     "Camera name(s): overview, front, top, casting_closeup, scanner_view "
+                     "(default: overview casting_closeup top)");
+  render->add_option("--width", width, "Image width [px] (<= 1920)")->capture_default_str();
+  render->add_option("--height", height, "Image height [px] (<= 1080)")->capture_default_str();
+  render->add_flag("--json", common.json, "Print the image paths as JSON");
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -292,6 +336,7 @@ int main(int argc, char** argv) {
     if (*ik) return cmd_ik(common, pose_text, ik_tool, ik_all, ref_text, deg);
     if (*ws) return cmd_workspace(common, samples, seed, ws_tool, out);
     if (*cell) return cmd_cell(common, scenario, out);
+    if (*render) return cmd_render(common, scenario, out, cameras, width, height);
   } catch (const ft::InputError& e) {
     std::fprintf(stderr, "flashtwin: error: %s\n", e.what());
     return kExitBadInput;

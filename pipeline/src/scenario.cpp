@@ -1,9 +1,42 @@
 #include "flashtwin/pipeline/scenario.hpp"
 
+#include <cmath>
+
 #include "flashtwin/core/config.hpp"
 #include "flashtwin/core/errors.hpp"
+#include "flashtwin/core/random.hpp"
 
 namespace flashtwin::pipeline {
+
+namespace {
+
+void read_flash(const ConfigNode& f, sim::FlashParams& fp) {
+  fp.parting_line = f.get_bool("parting_line", fp.parting_line);
+  fp.holes = f.get_bool("holes", fp.holes);
+  fp.parting_height = f.get_double("parting_height", 0.0, 2.0, fp.parting_height);
+  if (f.has("thickness")) {
+    const auto v = f.at("thickness").as_doubles(2);
+    fp.thickness_min = v[0];
+    fp.thickness_max = v[1];
+    if (!(v[0] > 0 && v[0] <= v[1] && v[1] <= 0.005))
+      f.at("thickness").fail("expected [min, max] with 0 < min <= max <= 0.005 m");
+  }
+  if (f.has("height")) {
+    const auto v = f.at("height").as_doubles(2);
+    fp.height_min = v[0];
+    fp.height_max = v[1];
+    if (!(v[0] > 0 && v[0] <= v[1] && v[1] <= 0.05))
+      f.at("height").fail("expected [min, max] with 0 < min <= max <= 0.05 m");
+  }
+  fp.hole_height_max = f.get_double("hole_height_max", 1e-4, 0.02, fp.hole_height_max);
+  fp.wave_amplitude = f.get_double("wave_amplitude", 0.0, 0.9, fp.wave_amplitude);
+  fp.wave_length = f.get_double("wave_length", 0.001, 0.5, fp.wave_length);
+  fp.gaps = static_cast<int>(f.get_int("gaps", 0, 50, fp.gaps));
+  fp.gap_length_max = f.get_double("gap_length_max", 0.001, 0.5, fp.gap_length_max);
+  fp.root_spacing = f.get_double("root_spacing", 1e-4, 0.005, fp.root_spacing);
+}
+
+}  // namespace
 
 Scenario load_scenario(const std::string& path) {
   const ConfigNode root = ConfigNode::load_file(path);
@@ -41,24 +74,83 @@ Scenario load_scenario(const std::string& path) {
       if (cell.X_WTable.translation().z() <= cell.table_size.z())
         t.fail("expected the table top above the floor by more than its thickness");
     }
+    cell.X_WM = c.get_pose("scanner_mount", cell.X_WM);
     cell.timestep = c.get_double("timestep", 1e-5, 0.001, cell.timestep);
   }
 
   const ConfigNode casting = root.at("casting");
-  if (casting.has("placeholder")) {
-    const ConfigNode p = casting.at("placeholder");
-    cell.casting_size = p.get_vec3("size");
-    if (cell.casting_size.minCoeff() <= 0)
-      p.at("size").fail("expected three positive extents [m]");
-  } else {
-    casting.fail("expected a casting description (for now: placeholder: {size: [x, y, z]})");
+  sim::CastingParams& cp = sc.casting;
+  try {
+    cp.family = sim::family_from_string(casting.get_string("family"));
+  } catch (const ArgumentError&) {
+    casting.at("family").fail("expected flanged_plate, round_flange, housing or mesh, got '" +
+                              casting.get_string("family") + "'");
   }
-  // The casting pose is given on the table: relative to the table top centre.
-  const Pose X_TableC = casting.get_pose("pose", Pose::Identity());
-  cell.X_WC = cell.X_WTable * X_TableC;
+  cp.seed = static_cast<std::uint64_t>(casting.get_int("seed", 0, (1LL << 62),
+                                                        static_cast<long long>(sc.seed)));
+  if (cp.family == sim::CastingFamily::kMesh) {
+    cp.mesh_path = resolve_relative(path, casting.get_string("mesh"));
+    cp.mesh_scale = casting.get_double("scale", 1e-6, 1e3, 1.0);
+  } else if (casting.has("mesh")) {
+    casting.at("mesh").fail("expected no mesh for a parametric family (family: mesh uses it)");
+  }
+  if (casting.has("flash")) read_flash(casting.at("flash"), cp.flash);
+
+  Placement& pl = sc.placement;
+  if (casting.has("placement")) {
+    const ConfigNode p = casting.at("placement");
+    if (p.is_scalar()) {
+      if (p.as_string() != "random") p.fail("expected 'random' or a mapping {x, y, yaw, ...}");
+      pl.random = true;
+    } else {
+      pl.x = p.get_double("x", -2, 2, pl.x);
+      pl.y = p.get_double("y", -2, 2, pl.y);
+      pl.yaw = p.get_double("yaw", -4 * M_PI, 4 * M_PI, pl.yaw);
+      pl.roll = p.get_double("roll", -4 * M_PI, 4 * M_PI, pl.roll);
+      pl.pitch = p.get_double("pitch", -4 * M_PI, 4 * M_PI, pl.pitch);
+      pl.random = p.get_bool("random", pl.random);
+      pl.xy_range = p.get_double("xy_range", 0.0, 1.0, pl.xy_range);
+      pl.random_tilt = p.get_bool("tilt", pl.random_tilt);
+      if (pl.random_tilt && !pl.random) p.fail("expected tilt only together with random: true");
+    }
+    const Vec3& ts = cell.table_size;
+    if (std::abs(pl.x) > ts.x() / 2 || std::abs(pl.y) > ts.y() / 2)
+      p.fail("expected a position on the table top (|x| <= " + std::to_string(ts.x() / 2) +
+             ", |y| <= " + std::to_string(ts.y() / 2) + " m)");
+  }
 
   root.check_all_used();
   return sc;
+}
+
+CellSetup setup_cell(const Scenario& sc) {
+  CellSetup s;
+  s.casting = sim::make_casting(sc.casting);
+  s.spec = sc.cell;
+  const Placement& pl = sc.placement;
+  double x = pl.x, y = pl.y;
+  Mat3 R = (Eigen::AngleAxisd(pl.yaw, Vec3::UnitZ()) * Eigen::AngleAxisd(pl.pitch, Vec3::UnitY()) *
+            Eigen::AngleAxisd(pl.roll, Vec3::UnitX()))
+               .toRotationMatrix();
+  if (pl.random) {
+    // Its own stream, so placement draws do not change the casting's shape.
+    Rng rng(sc.seed * 0xD1B54A32D192ED03ULL + 3);
+    x = rng.uniform(-pl.xy_range, pl.xy_range);
+    y = rng.uniform(-pl.xy_range, pl.xy_range);
+    if (pl.random_tilt) {
+      // Uniform rotation from a uniform unit quaternion (Shoemake).
+      const double u1 = rng.uniform(), u2 = rng.uniform(), u3 = rng.uniform();
+      const Eigen::Quaterniond q(std::sqrt(u1) * std::cos(2 * M_PI * u3),
+                                 std::sqrt(1 - u1) * std::sin(2 * M_PI * u2),
+                                 std::sqrt(1 - u1) * std::cos(2 * M_PI * u2),
+                                 std::sqrt(u1) * std::sin(2 * M_PI * u3));
+      R = q.toRotationMatrix();
+    } else {
+      R = Eigen::AngleAxisd(rng.uniform(-M_PI, M_PI), Vec3::UnitZ()).toRotationMatrix();
+    }
+  }
+  s.spec.X_WC = sim::rest_on_table(s.spec, s.casting.nominal, x, y, R);
+  return s;
 }
 
 }  // namespace flashtwin::pipeline

@@ -3,10 +3,12 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <limits>
 #include <sstream>
 
 #include "flashtwin/core/errors.hpp"
 #include "flashtwin/core/io.hpp"
+#include "flashtwin/core/mesh.hpp"
 #include "flashtwin/sim/mujoco_handles.hpp"
 
 namespace flashtwin::sim {
@@ -97,7 +99,9 @@ std::string arm_mjcf(const RobotModel& robot, const Pose& X_WB, const CellSpec& 
   return os.str();
 }
 
-std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec) {
+std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec, const CastingAssets* casting) {
+  const CastingAssets fallback;
+  const CastingAssets& ca = casting ? *casting : fallback;
   std::ostringstream os;
   const Vec3 t = spec.X_WTable.translation();
   const Vec3& ts = spec.table_size;
@@ -112,6 +116,8 @@ std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec) {
      << "  <visual><global offwidth=\"1920\" offheight=\"1080\"/>"
      << "<quality shadowsize=\"4096\"/><headlight ambient=\"0.35 0.35 0.35\"/></visual>\n"
      << "  <asset>\n"
+     << "    <texture name=\"sky\" type=\"skybox\" builtin=\"gradient\" rgb1=\"0.55 0.65 0.75\" "
+        "rgb2=\"0.15 0.17 0.2\" width=\"256\" height=\"256\"/>\n"
      << "    <texture name=\"floor\" type=\"2d\" builtin=\"checker\" rgb1=\"0.55 0.57 0.6\" "
         "rgb2=\"0.45 0.47 0.5\" width=\"512\" height=\"512\"/>\n"
      << "    <material name=\"floor\" texture=\"floor\" texrepeat=\"8 8\" reflectance=\"0.05\"/>\n"
@@ -121,7 +127,15 @@ std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec) {
      << "    <material name=\"burr\" rgba=\"0.85 0.8 0.3 1\"/>\n"
      << "    <material name=\"table\" rgba=\"0.35 0.4 0.45 1\"/>\n"
      << "    <material name=\"casting\" rgba=\"0.42 0.4 0.38 1\"/>\n"
-     << "  </asset>\n"
+     << "    <material name=\"flash\" rgba=\"0.85 0.35 0.1 1\"/>\n"
+     << "    <material name=\"fixture\" rgba=\"0.2 0.45 0.25 1\"/>\n"
+     << "    <material name=\"scanner\" rgba=\"0.15 0.3 0.6 1\"/>\n";
+  if (casting) {
+    os << "    <mesh name=\"casting_nominal\" file=\"" << ca.nominal_stl << "\"/>\n";
+    if (!ca.flash_stl.empty())
+      os << "    <mesh name=\"casting_flash\" file=\"" << ca.flash_stl << "\"/>\n";
+  }
+  os << "  </asset>\n"
      << "  <worldbody>\n"
      << "    <light name=\"key\" directional=\"true\" pos=\"1 -1 3\" dir=\"-0.3 0.3 -1\" "
         "diffuse=\"0.6 0.6 0.6\" castshadow=\"true\"/>\n"
@@ -144,11 +158,39 @@ std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec) {
          << num(sy * (ts.y() / 2 - 0.04)) << " " << num(-ts.z() - leg_h / 2)
          << "\" size=\"0.03 0.03 " << num(leg_h / 2) << "\" material=\"table\"/>\n";
   os << "    </body>\n";
-  const Vec3& cs = spec.casting_size;
-  os << "    <body name=\"casting\" " << pose_attrs(spec.X_WC) << ">\n"
-     << "      <geom name=\"casting_placeholder\" type=\"box\" pos=\"0 0 " << num(cs.z() / 2)
-     << "\" size=\"" << num(cs.x() / 2) << " " << num(cs.y() / 2) << " " << num(cs.z() / 2)
-     << "\" material=\"casting\"/>\n"
+  // The casting: the nominal body and its flashes, visual only (the process model does contact).
+  os << "    <body name=\"casting\" " << pose_attrs(spec.X_WC) << ">\n";
+  if (casting) {
+    os << "      <geom name=\"casting_body\" type=\"mesh\" mesh=\"casting_nominal\" "
+          "material=\"casting\" contype=\"0\" conaffinity=\"0\"/>\n";
+    if (!ca.flash_stl.empty())
+      os << "      <geom name=\"casting_flash\" type=\"mesh\" mesh=\"casting_flash\" "
+            "material=\"flash\" contype=\"0\" conaffinity=\"0\"/>\n";
+  } else {
+    const Vec3 c = 0.5 * (ca.lo + ca.hi), h = 0.5 * (ca.hi - ca.lo);
+    os << "      <geom name=\"casting_body\" type=\"box\" pos=\"" << vec3_string(c) << "\" size=\""
+       << vec3_string(h) << "\" material=\"casting\"/>\n";
+  }
+  os << "    </body>\n";
+  // Fixture: two locating blocks on the table beside the casting's footprint along its x axis.
+  {
+    const Pose X_TableW = spec.X_WTable.inverse();
+    for (int sx = -1; sx <= 1; sx += 2) {
+      const Vec3 p_C(sx > 0 ? ca.hi.x() + 0.02 : ca.lo.x() - 0.02, 0.5 * (ca.lo.y() + ca.hi.y()), 0);
+      Vec3 p_T = X_TableW * (spec.X_WC * p_C);
+      p_T.z() = 0.0125;
+      const Vec3 p_W = spec.X_WTable * p_T;
+      os << "    <geom name=\"fixture_" << (sx > 0 ? "right" : "left")
+         << "\" type=\"box\" size=\"0.012 0.03 0.0125\" pos=\"" << vec3_string(p_W) << "\" quat=\""
+         << quat_wxyz_string(spec.X_WC.linear()) << "\" material=\"fixture\" contype=\"0\" "
+         << "conaffinity=\"0\"/>\n";
+    }
+  }
+  // The scanner head at its mount {M} (z_M is its viewing direction) and its camera.
+  os << "    <body name=\"scanner\" " << pose_attrs(spec.X_WM) << ">\n"
+     << "      <geom name=\"scanner_head\" type=\"box\" pos=\"0 0 -0.04\" size=\"0.06 0.09 0.035\" "
+        "material=\"scanner\" contype=\"0\" conaffinity=\"0\"/>\n"
+     << "      <camera name=\"scanner_view\" quat=\"0 1 0 0\" fovy=\"50\"/>\n"
      << "    </body>\n";
   // Named cameras aimed at the casting (targetbody keeps them aimed when it moves).
   const Vec3 c = spec.X_WC.translation();
@@ -195,15 +237,76 @@ ModelSummary check_mjcf(const std::string& path) {
   return s;
 }
 
-CellFiles write_cell(const RobotModel& robot, const CellSpec& spec, const std::string& dir) {
+Pose rest_on_table(const CellSpec& spec, const TriangleMesh& nominal, double x, double y,
+                   const Mat3& R_TC) {
+  double min_z = std::numeric_limits<double>::infinity();
+  for (const Vec3& v : nominal.vertices) min_z = std::min(min_z, (R_TC * v).z());
+  Pose X_TC = Pose::Identity();
+  X_TC.linear() = R_TC;
+  X_TC.translation() = Vec3(x, y, -min_z);
+  return spec.X_WTable * X_TC;
+}
+
+CellFiles write_cell(const RobotModel& robot, const CellSpec& spec, const Casting& casting,
+                     const std::string& dir) {
+  namespace fs = std::filesystem;
   ensure_directory(dir);
+  ensure_directory((fs::path(dir) / "meshes").string());
+  ensure_directory((fs::path(dir) / "truth").string());
   CellFiles f;
-  f.mjcf = (std::filesystem::path(dir) / "cell.xml").string();
-  f.urdf = (std::filesystem::path(dir) / "robot.urdf").string();
-  write_text_file(f.mjcf, cell_mjcf(robot, spec));
+  f.mjcf = (fs::path(dir) / "cell.xml").string();
+  f.urdf = (fs::path(dir) / "robot.urdf").string();
+  f.cad = (fs::path(dir) / "casting_cad.stl").string();
+  f.truth = (fs::path(dir) / "truth").string();
+
+  CastingAssets assets;
+  assets.nominal_stl = "meshes/casting_nominal.stl";
+  save_mesh((fs::path(dir) / assets.nominal_stl).string(), casting.nominal);
+  const TriangleMesh flash = casting.flash_mesh();
+  if (!flash.triangles.empty()) {
+    assets.flash_stl = "meshes/casting_flash.stl";
+    save_mesh((fs::path(dir) / assets.flash_stl).string(), flash);
+  }
+  casting.nominal.bounds(assets.lo, assets.hi);
+  save_mesh(f.cad, casting.nominal);
+  write_ground_truth(casting, spec.X_WC, f.truth);
+  write_text_file(f.mjcf, cell_mjcf(robot, spec, &assets));
   write_text_file(f.urdf, robot_urdf(robot));
   check_mjcf(f.mjcf);
   return f;
+}
+
+void write_ground_truth(const Casting& casting, const Pose& X_WC, const std::string& dir) {
+  namespace fs = std::filesystem;
+  ensure_directory(dir);
+  const TriangleMesh flash = casting.flash_mesh();
+  if (!flash.triangles.empty()) save_mesh((fs::path(dir) / "fins.stl").string(), flash);
+  std::ostringstream os;
+  os.precision(17);
+  os << "{\n  \"note\": \"ground truth for scoring only; frames: C = casting, W = world\",\n"
+     << "  \"family\": \"" << to_string(casting.family) << "\",\n"
+     << "  \"description\": \"" << casting.description << "\",\n"
+     << "  \"parting_height_m\": " << casting.parting_height << ",\n"
+     << "  \"nominal_volume_m3\": " << casting.nominal.volume() << ",\n"
+     << "  \"flash_volume_m3\": " << casting.flash_volume() << ",\n"
+     << "  \"X_WC\": [";
+  const auto m = to_row_major(X_WC);
+  for (int i = 0; i < 16; ++i) os << (i ? ", " : "") << m[i];
+  os << "],\n  \"fins\": [";
+  for (std::size_t i = 0; i < casting.fins.size(); ++i) {
+    const Fin& fin = casting.fins[i];
+    os << (i ? "," : "") << "\n    {\"kind\": \"" << fin.kind << "\", \"closed\": "
+       << (fin.closed ? "true" : "false") << ", \"volume_m3\": " << fin.volume
+       << ", \"thickness_m\": " << fin.thickness << ", \"max_height_m\": " << fin.max_height
+       << ", \"root_C\": [";
+    for (std::size_t k = 0; k < fin.root.size(); ++k) {
+      const Vec3& p = fin.root[k];
+      os << (k ? ", " : "") << "[" << p.x() << ", " << p.y() << ", " << p.z() << "]";
+    }
+    os << "]}";
+  }
+  os << "\n  ]\n}\n";
+  write_text_file((fs::path(dir) / "flash_truth.json").string(), os.str());
 }
 
 }  // namespace flashtwin::sim

@@ -7,8 +7,10 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <exception>
 #include <limits>
+#include <mutex>
 #include <sstream>
 #include <stdexcept>
 #include <thread>
@@ -292,11 +294,15 @@ struct ViewPlan {
   std::uint64_t key = 0;             // hash of (seed, view)
 };
 
-/// A block of consecutive rows of one view, with its own output (sized for the worst case,
-/// `count` used).
+/// A block of consecutive rows of one view.
 struct Task {
   const ViewPlan* view = nullptr;
   int row_begin = 0, row_end = 0;
+};
+
+/// Output of one task: sized for the worst case, the first `count` entries used. Blocks are
+/// recycled, so their pages are faulted in once per scan rather than once per task.
+struct Block {
   std::vector<Vec3f> points, normals;
   std::vector<std::uint8_t> truth;
   std::size_t count = 0;
@@ -429,12 +435,13 @@ void trace_row(const ScanContext& C, const Vec3f& o_W, const Vec3f& cam_W, const
 
 /// Turns a traced row into points (noise, outliers, mixed points), appended to the task.
 void emit_row(const ScanContext& C, const ViewPlan& V, int row, const Vec3& o_M,
-              const Vec3* dir_M, const RowScratch& s, Task& out) {
+              const Vec3* dir_M, const RowScratch& s, Block& out) {
   const NoiseParams& N = C.noise;
   const std::uint64_t row_key = splitmix64(V.key ^ static_cast<std::uint64_t>(row));
   const Eigen::Matrix3f R_MW = C.R_MW.cast<float>();
   const int cols = V.cols;
   for (int j = 0; j < cols; ++j) {
+    if (!s.ret[j] && s.t[j] < 0) continue;  // nothing to emit for this ray
     const std::uint64_t key = splitmix64(row_key ^ static_cast<std::uint64_t>(j));
     if (s.ret[j]) {
       const double t = s.t[j];
@@ -472,17 +479,19 @@ void emit_row(const ScanContext& C, const ViewPlan& V, int row, const Vec3& o_M,
 }
 
 /// Runs one task (a block of rows of one view).
-void run_task(const ScanContext& C, Task& task, RowScratch& s) {
+void run_task(const ScanContext& C, const Task& task, RowScratch& s, Block& out) {
   const ViewPlan& V = *task.view;
   s.resize(V.cols);
   // At most one return per ray plus one mixed point per neighbour pair. Vector3f's default
   // constructor leaves memory untouched, so unused capacity costs no page faults.
   const std::size_t bound =
       static_cast<std::size_t>(task.row_end - task.row_begin) * (2 * V.cols - 1);
-  task.points.resize(bound);
-  task.normals.resize(bound);
-  task.truth.resize(bound);
-  task.count = 0;
+  if (out.points.size() < bound) {
+    out.points.resize(bound);
+    out.normals.resize(bound);
+    out.truth.resize(bound);
+  }
+  out.count = 0;
   const Mat3 R_WM = C.X_WM.linear();
   for (int row = task.row_begin; row < task.row_end; ++row) {
     Vec3 o_M, cam_M;
@@ -507,7 +516,7 @@ void run_task(const ScanContext& C, Task& task, RowScratch& s) {
     const Vec3f o_W = (C.X_WM * o_M).cast<float>();
     const Vec3f cam_W = (C.X_WM * cam_M).cast<float>();
     trace_row(C, o_W, cam_W, dir_W, V.cols, V.range_min, V.range_max, s);
-    emit_row(C, V, row, o_M, dir_M, s, task);
+    emit_row(C, V, row, o_M, dir_M, s, out);
   }
 }
 
@@ -593,7 +602,42 @@ ScanResult scan(const ScanScene& scene, const Pose& X_WM_true, const ScanParams&
     }
   }
 
-  // Workers pull tasks in order; every task writes only its own output.
+  // Workers pull tasks in order and write into blocks of their own; a finished block is
+  // appended to the result as soon as all blocks before it are in (so the output order is
+  // (view, row, ray) whatever the thread count), then recycled.
+  result.cloud_M.points.reserve(result.rays);
+  result.cloud_M.normals.reserve(result.rays);
+  result.truth.reserve(result.rays);
+  std::mutex mutex;
+  std::vector<std::unique_ptr<Block>> finished(tasks.size());
+  std::vector<std::unique_ptr<Block>> spare;
+  std::size_t next_commit = 0;
+  auto commit = [&](std::size_t i, std::unique_ptr<Block> block) {
+    std::lock_guard<std::mutex> lock(mutex);
+    finished[i] = std::move(block);
+    for (; next_commit < tasks.size() && finished[next_commit]; ++next_commit) {
+      const Block& b = *finished[next_commit];
+      const std::size_t at = result.truth.size(), n = b.count;
+      // Plain byte copies (Eigen's vectors are not trivially copyable to the library).
+      result.cloud_M.points.resize(at + n);
+      result.cloud_M.normals.resize(at + n);
+      result.truth.resize(at + n);
+      std::memcpy(static_cast<void*>(result.cloud_M.points.data() + at), b.points.data(),
+                  n * sizeof(Vec3f));
+      std::memcpy(static_cast<void*>(result.cloud_M.normals.data() + at), b.normals.data(),
+                  n * sizeof(Vec3f));
+      std::memcpy(result.truth.data() + at, b.truth.data(), n);
+      spare.push_back(std::move(finished[next_commit]));
+    }
+  };
+  auto take_block = [&]() {
+    std::lock_guard<std::mutex> lock(mutex);
+    if (spare.empty()) return std::make_unique<Block>();
+    std::unique_ptr<Block> b = std::move(spare.back());
+    spare.pop_back();
+    return b;
+  };
+
   std::atomic<std::size_t> next{0};
   std::exception_ptr error;
   std::atomic<bool> failed{false};
@@ -601,14 +645,18 @@ ScanResult scan(const ScanScene& scene, const Pose& X_WM_true, const ScanParams&
     try {
       FastFloatScope ftz;
       RowScratch scratch;
-      for (std::size_t i = next++; i < tasks.size() && !failed; i = next++)
-        run_task(C, tasks[i], scratch);
+      for (std::size_t i = next++; i < tasks.size() && !failed; i = next++) {
+        std::unique_ptr<Block> block = take_block();
+        run_task(C, tasks[i], scratch, *block);
+        commit(i, std::move(block));
+      }
     } catch (...) {  // only allocation failures can end up here
+      std::lock_guard<std::mutex> lock(mutex);
       if (!failed.exchange(true)) error = std::current_exception();
     }
   };
-  const int nthreads =
-      static_cast<int>(std::min<std::size_t>(static_cast<std::size_t>(params.threads), tasks.size()));
+  const int nthreads = static_cast<int>(
+      std::min<std::size_t>(static_cast<std::size_t>(params.threads), tasks.size()));
   if (nthreads <= 1) {
     worker();
   } else {
@@ -618,22 +666,7 @@ ScanResult scan(const ScanScene& scene, const Pose& X_WM_true, const ScanParams&
     for (auto& th : pool) th.join();
   }
   if (error) std::rethrow_exception(error);
-
-  // Concatenate in (view, row, ray) order.
-  std::size_t total = 0;
-  for (const Task& t : tasks) total += t.count;
-  result.cloud_M.points.reserve(total);
-  result.cloud_M.normals.reserve(total);
-  result.truth.reserve(total);
-  for (Task& t : tasks) {
-    const auto n = static_cast<std::ptrdiff_t>(t.count);
-    result.cloud_M.points.insert(result.cloud_M.points.end(), t.points.begin(),
-                                 t.points.begin() + n);
-    result.cloud_M.normals.insert(result.cloud_M.normals.end(), t.normals.begin(),
-                                  t.normals.begin() + n);
-    result.truth.insert(result.truth.end(), t.truth.begin(), t.truth.begin() + n);
-    t = Task{};
-  }
+  FT_ASSERT(next_commit == tasks.size());
   result.time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return result;
 }

@@ -29,7 +29,8 @@ Pose site_pose(const mjData* d, int id) {
 TEST(Cell, MjcfFlangeAndTcpSitesMatchDhKinematics) {
   const auto sc = pipeline::load_scenario(ftest::source_path("scenarios/default.yaml"));
   const std::string dir = ftest::temp_dir("cell");
-  const auto files = sim::write_cell(sc.robot, sc.cell, dir);
+  const auto setup = pipeline::setup_cell(sc);
+  const auto files = sim::write_cell(sc.robot, setup.spec, setup.casting, dir);
   const sim::MjModelPtr m = sim::load_mjcf_file(files.mjcf);
   const sim::MjDataPtr d = sim::make_data(m.get());
   // Contract names.
@@ -55,8 +56,8 @@ TEST(Cell, MjcfFlangeAndTcpSitesMatchDhKinematics) {
       d->qpos[qadr[i]] = q[i];
     }
     mj_kinematics(m.get(), d.get());
-    const Pose X_WE = sc.cell.X_WB * planner::fk_flange(sc.robot, q);
-    const Pose X_WT = sc.cell.X_WB * planner::fk_tool(sc.robot, q);
+    const Pose X_WE = setup.spec.X_WB * planner::fk_flange(sc.robot, q);
+    const Pose X_WT = setup.spec.X_WB * planner::fk_tool(sc.robot, q);
     const Pose S = site_pose(d.get(), flange);
     worst_p = std::max(worst_p, (S.translation() - X_WE.translation()).norm());
     worst_r = std::max(worst_r, rotation_distance(S.linear(), X_WE.linear()));
@@ -120,7 +121,7 @@ TEST(Scenario, RejectsMissingFilesUnknownKeysAndBadValues) {
     return p;
   };
   const std::string robot = ftest::source_path("models/robots/ft6.yaml");
-  const std::string ok = "name: t\nrobot: " + robot + "\ncasting: {placeholder: {size: [0.1, 0.1, 0.1]}}\n";
+  const std::string ok = "name: t\nrobot: " + robot + "\ncasting: {family: housing}\n";
   EXPECT_NO_THROW(pipeline::load_scenario(write("ok.yaml", ok)));
   EXPECT_THROW(pipeline::load_scenario(dir + "/missing.yaml"), IoError);
   try {
@@ -131,14 +132,27 @@ TEST(Scenario, RejectsMissingFilesUnknownKeysAndBadValues) {
   }
   try {
     pipeline::load_scenario(write("neg.yaml", "name: t\nrobot: " + robot +
-                                                   "\ncasting: {placeholder: {size: [0.1, -0.1, 0.1]}}\n"));
+                                                   "\ncasting: {family: housing, flash: {height: [0.002, -0.001]}}\n"));
     FAIL();
   } catch (const ConfigError& e) {
-    EXPECT_NE(std::string(e.what()).find("casting.placeholder.size"), std::string::npos)
+    EXPECT_NE(std::string(e.what()).find("casting.flash.height"), std::string::npos) << e.what();
+  }
+  try {
+    pipeline::load_scenario(write("fam.yaml", "name: t\nrobot: " + robot + "\ncasting: {family: teapot}\n"));
+    FAIL();
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("casting.family: expected flanged_plate"), std::string::npos)
         << e.what();
   }
   try {
-    pipeline::load_scenario(write("norobot.yaml", "name: t\nrobot: nowhere.yaml\ncasting: {}\n"));
+    pipeline::load_scenario(write("off.yaml", "name: t\nrobot: " + robot +
+                                                   "\ncasting: {family: housing, placement: {x: 3}}\n"));
+    FAIL();
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("casting.placement"), std::string::npos) << e.what();
+  }
+  try {
+    pipeline::load_scenario(write("norobot.yaml", "name: t\nrobot: nowhere.yaml\ncasting: {family: housing}\n"));
     FAIL();
   } catch (const ConfigError& e) {
     EXPECT_NE(std::string(e.what()).find("robot"), std::string::npos) << e.what();
@@ -158,4 +172,37 @@ TEST(Cell, ServosHoldTheHomeKeyframeAgainstGravity) {
   EXPECT_LT(worst, 0.02);
   EXPECT_GT(worst, 0.0);  // and it is real dynamics, not a frozen state
   for (int i = 0; i < 6; ++i) EXPECT_LT(std::abs(d->qvel[i]), 1e-2);
+}
+
+TEST(Cell, CastingRestsOnTheTableInAnyOrientation) {
+  auto sc = pipeline::load_scenario(ftest::source_path("scenarios/default.yaml"));
+  sc.placement.random = true;
+  sc.placement.random_tilt = true;
+  for (std::uint64_t seed = 1; seed <= 5; ++seed) {
+    sc.seed = seed;
+    const auto setup = pipeline::setup_cell(sc);
+    double min_z = 1e9;
+    for (const auto& v : setup.casting.nominal.vertices)
+      min_z = std::min(min_z, (setup.spec.X_WC * v).z());
+    EXPECT_NEAR(min_z, setup.spec.X_WTable.translation().z(), 1e-12);
+  }
+}
+
+TEST(Cell, WrittenCellHasCastingMeshesAndGroundTruth) {
+  const auto sc = pipeline::load_scenario(ftest::source_path("scenarios/default.yaml"));
+  const auto setup = pipeline::setup_cell(sc);
+  const std::string dir = ftest::temp_dir("cell_files");
+  const auto files = sim::write_cell(sc.robot, setup.spec, setup.casting, dir);
+  const auto m = sim::load_mjcf_file(files.mjcf);
+  const int body = sim::require_id(m.get(), mjOBJ_BODY, "casting");
+  const int geom = sim::require_id(m.get(), mjOBJ_GEOM, "casting_body");
+  EXPECT_EQ(m->geom_bodyid[geom], body);
+  EXPECT_EQ(m->geom_type[geom], mjGEOM_MESH);
+  sim::require_id(m.get(), mjOBJ_GEOM, "casting_flash");
+  sim::require_id(m.get(), mjOBJ_BODY, "scanner");
+  // The CAD model file is the nominal mesh, in {C}.
+  const TriangleMesh cad = load_mesh(files.cad);
+  EXPECT_NEAR(cad.volume(), setup.casting.nominal.volume(), 1e-6 * setup.casting.nominal.volume());
+  EXPECT_TRUE(std::filesystem::exists(files.truth + "/flash_truth.json"));
+  EXPECT_TRUE(std::filesystem::exists(files.truth + "/fins.stl"));
 }

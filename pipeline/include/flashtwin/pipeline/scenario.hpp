@@ -4,9 +4,20 @@
 #include <string>
 
 #include "flashtwin/core/robot.hpp"
+#include "flashtwin/sim/casting.hpp"
 #include "flashtwin/sim/cell.hpp"
 
 namespace flashtwin::pipeline {
+
+/// Where the casting lies on the table (table-top frame; z is found by resting it on the top).
+struct Placement {
+  double x = 0, y = 0;           ///< [m] on the table top
+  double yaw = 0;                ///< [rad] about the table normal
+  double roll = 0, pitch = 0;    ///< [rad] tilts (free-form parts held by the fixture)
+  bool random = false;           ///< draw x, y within ±xy_range and yaw in [-π, π) by the seed
+  double xy_range = 0.06;        ///< [m]
+  bool random_tilt = false;      ///< with random: any orientation in SO(3)
+};
 
 struct Scenario {
   std::string name;
@@ -14,12 +25,24 @@ struct Scenario {
   std::string description;
   std::uint64_t seed = 1;   ///< master seed of every random choice of the run
   RobotModel robot;
-  sim::CellSpec cell;
+  sim::CellSpec cell;       ///< X_WC is set by setup_cell from `placement`
+  sim::CastingParams casting;
+  Placement placement;
 };
 
 /// Reads and validates a scenario; relative paths inside are resolved against its folder.
 /// @throws IoError (missing file), ConfigError (naming file and key: malformed, out of range,
 /// unknown keys).
 Scenario load_scenario(const std::string& path);
+
+/// The casting of a scenario and the cell with the casting placed on the table.
+struct CellSetup {
+  sim::Casting casting;
+  sim::CellSpec spec;
+};
+
+/// Generates the casting and places it (deterministic in the scenario seed).
+/// @throws InputError/ArgumentError from the casting generator (bad mesh, impossible params).
+CellSetup setup_cell(const Scenario& scenario);
 
 }  // namespace flashtwin::pipeline

@@ -5,6 +5,7 @@
 #include <string>
 
 #include "flashtwin/core/robot.hpp"
+#include "flashtwin/sim/casting.hpp"
 
 namespace flashtwin::sim {
 
@@ -18,7 +19,9 @@ struct CellSpec {
   Vec3 table_size{0.8, 0.9, 0.05};  ///< [m] top plate extents (x, y, thickness)
   /// Casting frame {C} in {W}.
   Pose X_WC = Pose(Eigen::Translation3d(0.70, 0.0, 0.78));
-  Vec3 casting_size{0.25, 0.18, 0.06};  ///< [m] placeholder box extents, {C} at its bottom centre
+  /// Scanner frame {M} in {W} (true mount pose): above the table, z_M pointing down.
+  Pose X_WM = Pose(Eigen::Translation3d(0.70, 0.0, 1.25)) *
+              Pose(Eigen::AngleAxisd(M_PI, Vec3::UnitX()));
   double timestep = 0.001;           ///< [s] MuJoCo step (≥ 1 kHz)
   /// Position-actuator stiffness per joint [N·m/rad]; torque-limited by the robot's limits.
   std::array<double, kNumJoints> kp{20000, 20000, 10000, 2000, 1500, 800};
@@ -29,18 +32,41 @@ struct CellSpec {
 /// sites `flange` and `tcp`), to be placed inside <worldbody>; `X_WB` places the base.
 std::string arm_mjcf(const RobotModel& robot, const Pose& X_WB, const CellSpec& spec);
 
-/// MJCF text of the whole cell.
-std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec);
+/// Mesh files of the casting the MJCF refers to (paths relative to the MJCF's folder).
+struct CastingAssets {
+  std::string nominal_stl;  ///< the casting body
+  std::string flash_stl;    ///< all fins (empty: none)
+  Vec3 lo = Vec3(-0.1, -0.1, 0), hi = Vec3(0.1, 0.1, 0.05);  ///< nominal bounds in {C} [m]
+};
+
+/// MJCF text of the whole cell; without assets the casting is a box of the default bounds.
+std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec,
+                      const CastingAssets* casting = nullptr);
 
 /// Files written by write_cell.
 struct CellFiles {
-  std::string mjcf;  ///< DIR/cell.xml
-  std::string urdf;  ///< DIR/robot.urdf
+  std::string mjcf;         ///< DIR/cell.xml (self-contained with DIR/meshes/)
+  std::string urdf;         ///< DIR/robot.urdf
+  std::string cad;          ///< DIR/casting_cad.stl: the nominal casting in {C} (the "CAD model")
+  std::string truth;        ///< DIR/truth/: ground truth for scoring only
 };
 
-/// Writes DIR/cell.xml (self-contained) and DIR/robot.urdf, then loads cell.xml with MuJoCo
-/// to prove it compiles. @throws IoError (cannot write), InputError (MuJoCo rejects it).
-CellFiles write_cell(const RobotModel& robot, const CellSpec& spec, const std::string& dir);
+/// Writes the cell: DIR/cell.xml, DIR/meshes/*.stl, DIR/robot.urdf, DIR/casting_cad.stl and the
+/// ground truth (DIR/truth/: fins.stl, flash_truth.json with each fin's volume and root
+/// polyline in {C} and {W}); then loads cell.xml with MuJoCo to prove it compiles.
+/// @throws IoError (cannot write), InputError (MuJoCo rejects it).
+CellFiles write_cell(const RobotModel& robot, const CellSpec& spec, const Casting& casting,
+                     const std::string& dir);
+
+/// Writes the ground truth of a casting placed at X_WC into `dir`: fins.stl ({C}) and
+/// flash_truth.json (fin kinds, volumes, root polylines in {C}, X_WC). Scoring only.
+void write_ground_truth(const Casting& casting, const Pose& X_WC, const std::string& dir);
+
+/// The pose of {C} in {W} that rests the casting on the table top: given the position (x, y)
+/// on the table [m] and an orientation R_TC relative to the table frame, z is chosen so the
+/// lowest point of the rotated casting touches the table.
+Pose rest_on_table(const CellSpec& spec, const TriangleMesh& nominal, double x, double y,
+                   const Mat3& R_TC);
 
 /// Summary of a compiled MuJoCo model, for users and tests.
 struct ModelSummary {
