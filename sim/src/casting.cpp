@@ -7,6 +7,7 @@
 #include <unordered_map>
 
 #include "flashtwin/core/errors.hpp"
+#include "flashtwin/core/mesh_query.hpp"
 #include "flashtwin/core/random.hpp"
 #include "triangulate.hpp"
 
@@ -627,6 +628,28 @@ Casting make_casting(const CastingParams& params) {
   Rng flash_rng(params.seed * 0x9E3779B97F4A7C15ULL + 17);
   c.fins = make_fins(c.nominal, c.parting_height, params.flash, flash_rng);
   return c;
+}
+
+struct FlashLabeler::Impl {
+  MeshBvh nominal;
+  std::unique_ptr<MeshBvh> fins;
+  explicit Impl(const Casting& c) : nominal(c.nominal) {
+    const TriangleMesh f = c.flash_mesh();
+    if (!f.triangles.empty()) fins = std::make_unique<MeshBvh>(f);
+  }
+};
+
+FlashLabeler::FlashLabeler(const Casting& casting) : impl_(std::make_unique<Impl>(casting)) {}
+FlashLabeler::~FlashLabeler() = default;
+
+bool FlashLabeler::is_flash(const Vec3& p_C) const {
+  if (!impl_->fins) return false;
+  const double dn = impl_->nominal.closest(p_C).distance;
+  return impl_->fins->closest(p_C, dn).distance < dn;
+}
+
+double FlashLabeler::distance_to_nominal(const Vec3& p_C) const {
+  return impl_->nominal.closest(p_C).distance;
 }
 
 }  // namespace flashtwin::sim

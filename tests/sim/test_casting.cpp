@@ -205,3 +205,27 @@ TEST(Casting, UserMeshRoundTripAndRejections) {
   bad.flash.thickness_min = -1;
   EXPECT_THROW(make_casting(bad), ArgumentError);
 }
+
+TEST(Casting, LabelerSeparatesFlashFromBody) {
+  const Casting c = make_casting(params_for(CastingFamily::kFlangedPlate, 4));
+  const FlashLabeler label(c);
+  int flash_ok = 0, flash_total = 0;
+  for (const auto& f : c.fins)
+    for (std::size_t v = 2; v < f.mesh.vertices.size(); v += 4 * 25) {  // tip vertices
+      ++flash_total;
+      flash_ok += label.is_flash(f.mesh.vertices[v]);
+    }
+  EXPECT_EQ(flash_ok, flash_total);
+  // Points on the top face (far from the parting plane) are body.
+  int body_ok = 0, body_total = 0;
+  for (std::size_t t = 0; t < c.nominal.triangles.size(); t += 3) {
+    const auto& tri = c.nominal.triangles[t];
+    const Vec3 p = (c.nominal.vertices[tri[0]] + c.nominal.vertices[tri[1]] + c.nominal.vertices[tri[2]]) / 3;
+    if (std::abs(p.z() - c.parting_height) < 0.004) continue;
+    ++body_total;
+    body_ok += !label.is_flash(p);
+    EXPECT_LT(label.distance_to_nominal(p), 1e-10);
+  }
+  EXPECT_EQ(body_ok, body_total);
+  EXPECT_GT(body_total, 20);
+}

@@ -2,6 +2,7 @@
 // Castings: parametric families (nominal "CAD" meshes) and users' own meshes, with
 // procedurally generated flashes and their ground truth.
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -71,6 +72,22 @@ struct Casting {
   double flash_volume() const;
   /// All fins as one mesh.
   TriangleMesh flash_mesh() const;
+};
+
+/// Ground-truth labelling of points near a casting (scoring only): a point is flash when it is
+/// nearer to a fin's surface than to the nominal surface. Built once per casting.
+class FlashLabeler {
+ public:
+  explicit FlashLabeler(const Casting& casting);
+  ~FlashLabeler();
+  /// @param p_C point in the casting frame {C} [m]
+  bool is_flash(const Vec3& p_C) const;
+  /// Distance to the nominal surface [m].
+  double distance_to_nominal(const Vec3& p_C) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
 };
 
 /// Generates or loads the casting and its flashes. Deterministic in params.seed.
