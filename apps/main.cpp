@@ -21,6 +21,8 @@
 #include "flashtwin/planner/workspace.hpp"
 #include "flashtwin/sim/cell.hpp"
 #include "flashtwin/sim/views.hpp"
+#include "flashtwin/sim/scan_cell.hpp"
+#include "flashtwin/core/mesh.hpp"
 
 #ifndef FLASHTWIN_SOURCE_DIR
 #define FLASHTWIN_SOURCE_DIR "."
@@ -215,17 +217,121 @@ int cmd_cell(const Common& c, const std::string& scenario_path, const std::strin
   return kExitOk;
 }
 
-int cmd_render(const Common& c, const std::string& scenario_path, const std::string& out,
-               const std::vector<std::string>& cameras, int width, int height) {
+// Builds the scenario's cell in out/cell and scans it; writes the scan files into out.
+struct ScanRun {
+  ft::pipeline::CellSetup setup;
+  ft::sim::CellFiles files;
+  ft::sim::CellScan scan;
+};
+
+ScanRun run_scan(const ft::pipeline::Scenario& sc, const std::string& out) {
+  ScanRun r;
+  r.setup = ft::pipeline::setup_cell(sc);
+  r.files = ft::sim::write_cell(sc.robot, r.setup.spec, r.setup.casting,
+                                (std::filesystem::path(out) / "cell").string());
+  const ft::Pose X_WM_true = ft::sim::perturb_pose(r.setup.spec.X_WM, sc.calibration_translation,
+                                                   sc.calibration_rotation, sc.seed);
+  r.scan = ft::sim::scan_cell(r.files.mjcf, r.setup.casting, sc.scan, r.setup.spec.X_WM, X_WM_true);
+  const auto& res = r.scan.result;
+  namespace fs = std::filesystem;
+  // The scan as a sensor delivers it: points only (the simulator's exact surface normals are
+  // ground truth; perception estimates its own).
+  ft::PointCloud points;
+  points.points = res.cloud_M.points;
+  ft::save_ply((fs::path(out) / "scan.ply").string(), points);
+  ft::save_pcd((fs::path(out) / "scan.pcd").string(), points);
+  // Ground-truth labels live apart from the scan: perception never reads them.
+  ft::PointCloud labelled = points;
+  labelled.labels = res.truth;
+  ft::save_ply((fs::path(out) / "cell" / "truth" / "scan_labels.ply").string(), labelled);
+  json meta;
+  meta["frame"] = "M (scanner)";
+  meta["X_WM"] = pose_json(r.scan.X_WM_nominal);
+  meta["X_BM"] = pose_json(r.setup.spec.X_WB.inverse() * r.scan.X_WM_nominal);
+  meta["points"] = res.cloud_M.size();
+  meta["rays"] = res.rays;
+  meta["time_s"] = res.time_s;
+  meta["rays_per_s"] = res.rays_per_s();
+  meta["cad"] = r.files.cad;
+  ft::write_text_file((fs::path(out) / "scan.json").string(), meta.dump(2) + "\n");
+  return r;
+}
+
+int cmd_scan(const Common& c, const std::string& scenario_path, const std::string& out) {
   const ft::pipeline::Scenario sc = ft::pipeline::load_scenario(scenario_path);
-  const auto setup = ft::pipeline::setup_cell(sc);
-  const auto files = ft::sim::write_cell(sc.robot, setup.spec, setup.casting,
-                                         (std::filesystem::path(out) / "cell").string());
+  const ScanRun r = run_scan(sc, out);
+  const auto& res = r.scan.result;
+  std::size_t flash = 0;
+  for (auto l : res.truth) flash += l == ft::sim::kTruthFlash;
+  if (c.json) {
+    json j;
+    j["points"] = res.cloud_M.size();
+    j["flash_points_truth"] = flash;
+    j["rays"] = res.rays;
+    j["time_s"] = res.time_s;
+    j["rays_per_s"] = res.rays_per_s();
+    j["scene_triangles"] = r.scan.scene_triangles;
+    j["ply"] = (std::filesystem::path(out) / "scan.ply").string();
+    j["pcd"] = (std::filesystem::path(out) / "scan.pcd").string();
+    std::cout << j.dump() << "\n";
+  } else {
+    std::printf("scan of '%s': %zu points (%zu on flashes) from %llu rays in %.3f s = %.2f M rays/s "
+                "over %zu triangles\n%s/scan.ply, scan.pcd (frame {M}; X_WM in scan.json)\n",
+                sc.name.c_str(), res.cloud_M.size(), flash,
+                static_cast<unsigned long long>(res.rays), res.time_s, res.rays_per_s() / 1e6,
+                r.scan.scene_triangles, out.c_str());
+  }
+  return kExitOk;
+}
+
+ft::Rgb truth_colour(std::uint8_t label) {
+  switch (label) {
+    case ft::sim::kTruthBody: return {70, 140, 230};
+    case ft::sim::kTruthFlash: return {255, 60, 20};
+    case ft::sim::kTruthOutlier: return {230, 0, 230};
+    case ft::sim::kTruthMixed: return {250, 220, 0};
+    default: return {40, 200, 200};
+  }
+}
+
+int cmd_render(const Common& c, const std::string& scenario_path, const std::string& out,
+               const std::vector<std::string>& cameras, int width, int height, bool with_scan,
+               bool truth) {
+  const ft::pipeline::Scenario sc = ft::pipeline::load_scenario(scenario_path);
   ft::sim::RenderRequest req;
   if (!cameras.empty()) req.cameras = cameras;
   req.width = width;
   req.height = height;
-  const auto paths = ft::sim::render_views(files.mjcf, req, out, "render_");
+  std::string mjcf;
+  if (with_scan || truth) {
+    const ScanRun r = run_scan(sc, out);
+    mjcf = r.files.mjcf;
+    const auto& res = r.scan.result;
+    // Points placed with the calibrated pose, as perception would place them; only those
+    // near the casting (its box grown by 2 cm) are drawn: each drawn point costs render time.
+    ft::Vec3 lo, hi;
+    r.setup.casting.nominal.bounds(lo, hi);
+    const Eigen::AlignedBox3d roi(lo - ft::Vec3::Constant(0.02), hi + ft::Vec3::Constant(0.02));
+    const ft::Pose X_CM = r.setup.spec.X_WC.inverse() * r.scan.X_WM_nominal;
+    std::vector<std::size_t> near;
+    for (std::size_t i = 0; i < res.cloud_M.size(); ++i)
+      if (roi.contains(X_CM * res.cloud_M.points[i].cast<double>())) near.push_back(i);
+    const std::size_t budget = 15000;
+    const double step = std::max(1.0, static_cast<double>(near.size()) / budget);
+    for (double k = 0; k < static_cast<double>(near.size()); k += step) {
+      const std::size_t i = near[static_cast<std::size_t>(k)];
+      req.points_W.push_back(r.scan.X_WM_nominal * res.cloud_M.points[i].cast<double>());
+      req.colors.push_back(truth ? truth_colour(res.truth[i]) : ft::Rgb{40, 200, 200});
+    }
+    req.max_points = static_cast<int>(budget);
+    req.point_radius = 0.0005;
+  } else {
+    const auto setup = ft::pipeline::setup_cell(sc);
+    mjcf = ft::sim::write_cell(sc.robot, setup.spec, setup.casting,
+                               (std::filesystem::path(out) / "cell").string())
+               .mjcf;
+  }
+  const auto paths = ft::sim::render_views(mjcf, req, out, with_scan || truth ? "scan_" : "render_");
   if (c.json) {
     json j;
     j["images"] = paths;
@@ -309,7 +415,19 @@ int main(int argc, char** argv) {
                      "(default: overview casting_closeup top)");
   render->add_option("--width", width, "Image width [px] (<= 1920)")->capture_default_str();
   render->add_option("--height", height, "Image height [px] (<= 1080)")->capture_default_str();
+  bool with_scan = false, with_truth = false;
+  render->add_flag("--scan", with_scan, "Scan the cell and draw the scan points");
+  render->add_flag("--truth", with_truth,
+                   "With the scan: colour points by ground truth (flash red, body blue, "
+                   "background cyan, outliers magenta, mixed yellow)");
   render->add_flag("--json", common.json, "Print the image paths as JSON");
+
+  auto* scan = app.add_subcommand(
+      "scan", "Scan the scenario's cell with the virtual laser scanner (Embree): PLY + PCD");
+  scan->add_option("scenario", scenario, "Scenario YAML")->required();
+  scan->add_option("-o,--output", out, "Output folder (scan.ply, scan.pcd, scan.json, cell/)")
+      ->required();
+  scan->add_flag("--json", common.json, "Print points, time and rays/s as JSON");
 
   try {
     app.parse(argc, argv);
@@ -336,7 +454,9 @@ int main(int argc, char** argv) {
     if (*ik) return cmd_ik(common, pose_text, ik_tool, ik_all, ref_text, deg);
     if (*ws) return cmd_workspace(common, samples, seed, ws_tool, out);
     if (*cell) return cmd_cell(common, scenario, out);
-    if (*render) return cmd_render(common, scenario, out, cameras, width, height);
+    if (*render)
+      return cmd_render(common, scenario, out, cameras, width, height, with_scan, with_truth);
+    if (*scan) return cmd_scan(common, scenario, out);
   } catch (const ft::InputError& e) {
     std::fprintf(stderr, "flashtwin: error: %s\n", e.what());
     return kExitBadInput;

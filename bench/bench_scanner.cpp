@@ -37,8 +37,8 @@ TriangleMesh sphere(const Vec3& c, double r, int lon, int lat) {
     const double th = M_PI * i / lat - M_PI / 2;
     for (int k = 0; k < lon; ++k) {
       const double ph = 2 * M_PI * k / lon;
-      m.vertices.push_back(c + r * Vec3(std::cos(th) * std::cos(ph), std::cos(th) * std::sin(ph),
-                                        std::sin(th)));
+      m.vertices.push_back(
+          c + r * Vec3(std::cos(th) * std::cos(ph), std::cos(th) * std::sin(ph), std::sin(th)));
     }
   }
   m.vertices.push_back(c + Vec3(0, 0, r));
@@ -50,7 +50,8 @@ TriangleMesh sphere(const Vec3& c, double r, int lon, int lat) {
       m.triangles.emplace_back(ring(i, k), ring(i, k + 1), ring(i + 1, k + 1));
       m.triangles.emplace_back(ring(i, k), ring(i + 1, k + 1), ring(i + 1, k));
     }
-  for (int k = 0; k < lon; ++k) m.triangles.emplace_back(top, ring(lat - 1, k), ring(lat - 1, k + 1));
+  for (int k = 0; k < lon; ++k)
+    m.triangles.emplace_back(top, ring(lat - 1, k), ring(lat - 1, k + 1));
   return m;
 }
 
@@ -94,10 +95,11 @@ const Bench& bench() {
   static const Bench b = [] {
     Bench out;
     std::vector<SceneMesh> meshes;
-    meshes.push_back({plate(0.3, 0.0, 224), kTruthBackground, "table"});              // 100,352
-    meshes.push_back({sphere(Vec3(-0.05, 0.03, 0.06), 0.06, 320, 160), kTruthBody, "sphere"});  // 101,760
+    meshes.push_back({plate(0.3, 0.0, 224), kTruthBackground, "table"});  // 100,352
+    meshes.push_back(
+        {sphere(Vec3(-0.05, 0.03, 0.06), 0.06, 320, 160), kTruthBody, "sphere"});  // 101,760
     meshes.push_back({box(Vec3(0.08, -0.03, 0.025), Vec3(0.05, 0.04, 0.025), 92), kTruthFlash,
-                      "box"});                                                          // 101,568
+                      "box"});  // 101,568
     out.scene = std::make_unique<ScanScene>(meshes);
     // Scanner 0.35 m above the table, looking down (+z_M = −z_W), sweeping along +x_W.
     out.X_WM.linear() = Eigen::AngleAxisd(M_PI, Vec3::UnitX()).toRotationMatrix();
@@ -125,8 +127,8 @@ void BM_LineProfilerScan(benchmark::State& state) {
     points = r.cloud_M.size();
     benchmark::DoNotOptimize(r.cloud_M.points.data());
   }
-  state.counters["rays_per_s"] = benchmark::Counter(static_cast<double>(rays),
-                                                    benchmark::Counter::kIsRate);
+  state.counters["rays_per_s"] =
+      benchmark::Counter(static_cast<double>(rays), benchmark::Counter::kIsRate);
   state.counters["rays"] = static_cast<double>(rays) / state.iterations();
   state.counters["points"] = static_cast<double>(points);
   state.counters["triangles"] = static_cast<double>(b.scene->num_triangles());

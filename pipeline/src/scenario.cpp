@@ -5,6 +5,7 @@
 #include "flashtwin/core/config.hpp"
 #include "flashtwin/core/errors.hpp"
 #include "flashtwin/core/random.hpp"
+#include "flashtwin/sim/scan_cell.hpp"
 
 namespace flashtwin::pipeline {
 
@@ -34,6 +35,81 @@ void read_flash(const ConfigNode& f, sim::FlashParams& fp) {
   fp.gaps = static_cast<int>(f.get_int("gaps", 0, 50, fp.gaps));
   fp.gap_length_max = f.get_double("gap_length_max", 0.001, 0.5, fp.gap_length_max);
   fp.root_spacing = f.get_double("root_spacing", 1e-4, 0.005, fp.root_spacing);
+}
+
+Pose view_pose(const ConfigNode& v) {
+  return pose_from_xyz_rpy(v.get_vec3("xyz", Vec3::Zero()), v.get_vec3("rpy", Vec3::Zero()));
+}
+
+void read_scanner(const ConfigNode& s, Scenario& sc) {
+  sim::ScanParams& sp = sc.scan;
+  sp.seed = static_cast<std::uint64_t>(s.get_int("seed", 0, (1LL << 62), static_cast<long long>(sp.seed)));
+  sp.threads = static_cast<int>(s.get_int("threads", 1, 64, sp.threads));
+  if (s.has("noise")) {
+    const ConfigNode n = s.at("noise");
+    sim::NoiseParams& np = sp.noise;
+    np.sigma = n.get_double("sigma", 0.0, 0.01, np.sigma);
+    np.incidence_gain = n.get_double("incidence_gain", 0.0, 100.0, np.incidence_gain);
+    np.max_incidence = n.get_double("max_incidence_deg", 1.0, 89.9, np.max_incidence * 180 / M_PI) * M_PI / 180;
+    np.mixed_jump = n.get_double("mixed_jump", 1e-5, 1.0, np.mixed_jump);
+    np.mixed_probability = n.get_double("mixed_probability", 0.0, 1.0, np.mixed_probability);
+    np.outlier_rate = n.get_double("outlier_rate", 0.0, 0.5, np.outlier_rate);
+    np.outlier_range = n.get_double("outlier_range", 0.0, 1.0, np.outlier_range);
+  }
+  if (s.has("calibration_error")) {
+    const ConfigNode c = s.at("calibration_error");
+    sc.calibration_translation = c.get_double("translation", 0.0, 0.1, 0.0);
+    sc.calibration_rotation = c.get_double("rotation", 0.0, 0.2, 0.0);
+  }
+  if (s.has("views")) {
+    const ConfigNode vs = s.at("views");
+    if (!vs.is_sequence() || vs.size() == 0) vs.fail("expected a non-empty list of views");
+    sp.views.clear();
+    for (std::size_t i = 0; i < vs.size(); ++i) {
+      const ConfigNode v = vs[i];
+      sim::ScanView view;
+      const std::string kind = v.get_string("kind", "line");
+      view.X_MS = view_pose(v);
+      if (kind == "line") {
+        view.kind = sim::SensorKind::kLineProfiler;
+        auto& l = view.line;
+        l.points_per_profile = static_cast<int>(v.get_int("points_per_profile", 1, 100000, l.points_per_profile));
+        l.fov = v.get_double("fov", 1e-3, 3.0, l.fov);
+        l.standoff = v.get_double("standoff", 0.01, 10.0, l.standoff);
+        if (v.has("range")) {
+          const auto r = v.at("range").as_doubles(2);
+          if (!(r[0] > 0 && r[0] < r[1])) v.at("range").fail("expected [min, max] with 0 < min < max");
+          l.range_min = r[0];
+          l.range_max = r[1];
+        }
+        l.profile_spacing = v.get_double("profile_spacing", 1e-6, 0.1, l.profile_spacing);
+        l.sweep_length = v.get_double("sweep_length", 1e-4, 10.0, l.sweep_length);
+        l.baseline = v.get_double("baseline", 0.0, 2.0, l.baseline);
+      } else if (kind == "area") {
+        view.kind = sim::SensorKind::kAreaSensor;
+        auto& a = view.area;
+        a.width = static_cast<int>(v.get_int("width", 1, 20000, a.width));
+        a.height = static_cast<int>(v.get_int("height", 1, 20000, a.height));
+        if (v.has("fov")) {
+          const auto f = v.at("fov").as_doubles(2);
+          if (!(f[0] > 0 && f[0] < 3 && f[1] > 0 && f[1] < 3)) v.at("fov").fail("expected two angles in (0, 3) rad");
+          a.fov_x = f[0];
+          a.fov_y = f[1];
+        }
+        a.standoff = v.get_double("standoff", 0.01, 10.0, a.standoff);
+        if (v.has("range")) {
+          const auto r = v.at("range").as_doubles(2);
+          if (!(r[0] > 0 && r[0] < r[1])) v.at("range").fail("expected [min, max] with 0 < min < max");
+          a.range_min = r[0];
+          a.range_max = r[1];
+        }
+        a.baseline = v.get_double("baseline", 0.0, 2.0, a.baseline);
+      } else {
+        v.at("kind").fail("expected line or area, got '" + kind + "'");
+      }
+      sp.views.push_back(view);
+    }
+  }
 }
 
 }  // namespace
@@ -118,6 +194,11 @@ Scenario load_scenario(const std::string& path) {
       p.fail("expected a position on the table top (|x| <= " + std::to_string(ts.x() / 2) +
              ", |y| <= " + std::to_string(ts.y() / 2) + " m)");
   }
+
+  sc.scan.views = sim::default_scan_views();
+  sc.scan.seed = sc.seed;
+  sc.scan.threads = 2;
+  if (root.has("scanner")) read_scanner(root.at("scanner"), sc);
 
   root.check_all_used();
   return sc;

@@ -201,7 +201,7 @@ std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec, const Casti
   camera("overview", Vec3(1.2, -1.4, 1.0));
   camera("front", Vec3(1.1, 0.0, 0.5));
   camera("top", Vec3(0.0, -0.01, 1.2));
-  camera("casting_closeup", Vec3(0.25, -0.35, 0.35));
+  camera("casting_closeup", Vec3(0.16, -0.24, 0.20));
   os << "  </worldbody>\n"
      << "  <actuator>\n";
   for (int i = 0; i < kNumJoints; ++i) {

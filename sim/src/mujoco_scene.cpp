@@ -109,8 +109,7 @@ TriangleMesh tessellate_geom(const mjModel* m, const mjData* d, int g, int segme
       for (int r = 0; r < nr; ++r)
         for (int c = 0; c < nc; ++c)
           local.vertices.emplace_back(hs[0] * (2.0 * c / (nc - 1) - 1.0),
-                                      hs[1] * (2.0 * r / (nr - 1) - 1.0),
-                                      hs[2] * data[r * nc + c]);
+                                      hs[1] * (2.0 * r / (nr - 1) - 1.0), hs[2] * data[r * nc + c]);
       for (int r = 0; r + 1 < nr; ++r)
         for (int c = 0; c + 1 < nc; ++c) {
           const int a = r * nc + c;
@@ -155,7 +154,8 @@ TriangleMesh tessellate_geom(const mjModel* m, const mjData* d, int g, int segme
     default:
       throw ArgumentError("geom " + std::to_string(g) + " ('" + geom_label(m, g) +
                           "'): expected a plane, hfield, sphere, capsule, ellipsoid, cylinder, "
-                          "box or mesh, got type " + std::to_string(m->geom_type[g]));
+                          "box or mesh, got type " +
+                          std::to_string(m->geom_type[g]));
   }
 
   // World pose of the geom (geom_xmat is row-major).

@@ -1,7 +1,9 @@
 #include "flashtwin/sim/scanner.hpp"
 
 #include <embree3/rtcore.h>
+#if defined(__SSE__)
 #include <xmmintrin.h>
+#endif
 
 #include <algorithm>
 #include <atomic>
@@ -117,7 +119,9 @@ ScanScene::ScanScene(const std::vector<SceneMesh>& meshes) : impl_(std::make_uni
 
 ScanScene::~ScanScene() = default;
 
-std::size_t ScanScene::num_triangles() const { return impl_->triangles; }
+std::size_t ScanScene::num_triangles() const {
+  return impl_->triangles;
+}
 
 // ---------------------------------------------------------------------------------------------
 // Scanning
@@ -153,30 +157,38 @@ enum Draw : std::uint64_t {
   kDrawMixedPosition = 4,
 };
 
+/// Polynomial c[0] x^(N-1) + ... + c[N-1] (Horner).
+template <std::size_t N>
+inline double horner(const double (&c)[N], double x) {
+  double y = c[0];
+  for (std::size_t i = 1; i < N; ++i) y = y * x + c[i];
+  return y;
+}
+
 /// Standard normal from one draw by the inverse normal CDF (P. J. Acklam's rational
 /// approximation, relative error < 1.2e-9). Cheaper than Box-Muller: 95 % of the draws need
 /// no log, sqrt or cos.
 inline double normal_from(std::uint64_t key, std::uint64_t slot) {
-  // p in (0, 1), never 0 or 1.
-  const double p =
-      (static_cast<double>(splitmix64(key + slot * kGolden) >> 11) + 0.5) * 0x1.0p-53;
+  static constexpr double a[] = {-3.969683028665376e+01, 2.209460984245205e+02,
+                                 -2.759285104469687e+02, 1.383577518672690e+02,
+                                 -3.066479806614716e+01, 2.506628277459239e+00};
+  static constexpr double b[] = {-5.447609879822406e+01, 1.615858368580409e+02,
+                                 -1.556989798598866e+02, 6.680131188771972e+01,
+                                 -1.328068155288572e+01, 1.0};
+  static constexpr double c[] = {-7.784894002430293e-03, -3.223964580411365e-01,
+                                 -2.400758277161838e+00, -2.549732539343734e+00,
+                                 4.374664141464968e+00,  2.938163982698783e+00};
+  static constexpr double d[] = {7.784695709041462e-03, 3.224671290700398e-01,
+                                 2.445134137142996e+00, 3.754408661907416e+00, 1.0};
   constexpr double kLow = 0.02425;
+  // p in (0, 1), never 0 or 1.
+  const double p = (static_cast<double>(splitmix64(key + slot * kGolden) >> 11) + 0.5) * 0x1.0p-53;
   if (p >= kLow && p <= 1.0 - kLow) {
     const double q = p - 0.5, r = q * q;
-    return (((((-3.969683028665376e+01 * r + 2.209460984245205e+02) * r -
-               2.759285104469687e+02) * r + 1.383577518672690e+02) * r -
-             3.066479806614716e+01) * r + 2.506628277459239e+00) * q /
-           (((((-5.447609879822406e+01 * r + 1.615858368580409e+02) * r -
-               1.556989798598866e+02) * r + 6.680131188771972e+01) * r -
-             1.328068155288572e+01) * r + 1.0);
+    return horner(a, r) * q / horner(b, r);
   }
-  const double tail = p < kLow ? p : 1.0 - p;
-  const double q = std::sqrt(-2.0 * std::log(tail));
-  const double x = (((((-7.784894002430293e-03 * q - 3.223964580411365e-01) * q -
-                       2.400758277161838e+00) * q - 2.549732539343734e+00) * q +
-                     4.374664141464968e+00) * q + 2.938163982698783e+00) /
-                   ((((7.784695709041462e-03 * q + 3.224671290700398e-01) * q +
-                      2.445134137142996e+00) * q + 3.754408661907416e+00) * q + 1.0);
+  const double q = std::sqrt(-2.0 * std::log(p < kLow ? p : 1.0 - p));
+  const double x = horner(c, q) / horner(d, q);
   return p < kLow ? x : -x;
 }
 
@@ -211,8 +223,8 @@ void require_range(const std::string& f, double range_min, double range_max, dou
   if (!(range_max > range_min) || !std::isfinite(range_max))
     bad(f + ".range_max", "> range_min (" + num(range_min) + ")", num(range_max));
   if (!(standoff >= range_min && standoff <= range_max))
-    bad(f + ".standoff", "within [range_min, range_max] = [" + num(range_min) + ", " +
-                             num(range_max) + "]",
+    bad(f + ".standoff",
+        "within [range_min, range_max] = [" + num(range_min) + ", " + num(range_max) + "]",
         num(standoff));
 }
 
@@ -256,16 +268,16 @@ void validate(const Pose& X_WM_true, const ScanParams& params) {
       require_nonnegative(g + ".baseline", a.baseline);
       rays = static_cast<double>(a.width) * a.height;
     } else {
-      bad(f + ".kind", "kLineProfiler or kAreaSensor",
-          std::to_string(static_cast<int>(v.kind)));
+      bad(f + ".kind", "kLineProfiler or kAreaSensor", std::to_string(static_cast<int>(v.kind)));
     }
     if (rays > kMaxRaysPerView) bad(f, "at most 1e9 rays per view", num(rays));
   }
   const NoiseParams& n = params.noise;
   require_nonnegative("scan.noise.sigma", n.sigma);
   require_nonnegative("scan.noise.incidence_gain", n.incidence_gain);
-  if (!(n.max_incidence > 0 && n.max_incidence <= M_PI / 2))
-    bad("scan.noise.max_incidence", "an angle in (0, pi/2] rad", num(n.max_incidence));
+  // Open at pi/2: sigma(θ) grows like tan²θ and is infinite at grazing incidence.
+  if (!(n.max_incidence > 0 && n.max_incidence < M_PI / 2))
+    bad("scan.noise.max_incidence", "an angle in (0, pi/2) rad", num(n.max_incidence));
   require_positive("scan.noise.mixed_jump", n.mixed_jump);
   require_in("scan.noise.mixed_probability", n.mixed_probability, 0, 1, "a probability in [0, 1]");
   require_in("scan.noise.outlier_rate", n.outlier_rate, 0, 1, "a probability in [0, 1]");
@@ -400,7 +412,8 @@ void trace_row(const ScanContext& C, const Vec3f& o_W, const Vec3f& cam_W, const
       const Vec3f p = o_W + t * d;
       Vec3f to_cam = cam_W - p;
       const float dist = to_cam.norm();
-      // The camera must look at the lit side of the surface.
+      // The camera must look at the lit side of the surface (the visibility ray below would
+      // find that too, through the surface itself; this is cheaper and immune to rounding).
       if (!(dist > 0) || ng.dot(to_cam) <= 0) continue;
       to_cam /= dist;
       // Start the camera ray just off the surface so it does not hit the lit triangle again.
@@ -434,8 +447,8 @@ void trace_row(const ScanContext& C, const Vec3f& o_W, const Vec3f& cam_W, const
 }
 
 /// Turns a traced row into points (noise, outliers, mixed points), appended to the task.
-void emit_row(const ScanContext& C, const ViewPlan& V, int row, const Vec3& o_M,
-              const Vec3* dir_M, const RowScratch& s, Block& out) {
+void emit_row(const ScanContext& C, const ViewPlan& V, int row, const Vec3& o_M, const Vec3* dir_M,
+              const RowScratch& s, Block& out) {
   const NoiseParams& N = C.noise;
   const std::uint64_t row_key = splitmix64(V.key ^ static_cast<std::uint64_t>(row));
   const Eigen::Matrix3f R_MW = C.R_MW.cast<float>();
@@ -484,8 +497,8 @@ void run_task(const ScanContext& C, const Task& task, RowScratch& s, Block& out)
   s.resize(V.cols);
   // At most one return per ray plus one mixed point per neighbour pair. Vector3f's default
   // constructor leaves memory untouched, so unused capacity costs no page faults.
-  const std::size_t bound =
-      static_cast<std::size_t>(task.row_end - task.row_begin) * (2 * V.cols - 1);
+  const std::size_t bound = static_cast<std::size_t>(task.row_end - task.row_begin) *
+                            (2 * static_cast<std::size_t>(V.cols) - 1);
   if (out.points.size() < bound) {
     out.points.resize(bound);
     out.normals.resize(bound);
@@ -520,16 +533,25 @@ void run_task(const ScanContext& C, const Task& task, RowScratch& s, Block& out)
   }
 }
 
-/// Flush-to-zero / denormals-are-zero for Embree's speed, restored on scope exit.
+/// Flush-to-zero / denormals-are-zero (as Embree recommends), restored on scope exit. Every
+/// worker sets it, so results do not depend on which thread ran a block.
 class FastFloatScope {
  public:
-  FastFloatScope() : saved_(_mm_getcsr()) { _mm_setcsr(saved_ | 0x8040u); }
-  ~FastFloatScope() { _mm_setcsr(saved_); }
+#if defined(__SSE__)
+  FastFloatScope() : saved_(_mm_getcsr()) {
+    _mm_setcsr(saved_ | 0x8040u);
+  }
+  ~FastFloatScope() {
+    _mm_setcsr(saved_);
+  }
+#else
+  FastFloatScope() = default;
+#endif
   FastFloatScope(const FastFloatScope&) = delete;
   FastFloatScope& operator=(const FastFloatScope&) = delete;
 
  private:
-  unsigned saved_;
+  unsigned saved_ = 0;
 };
 
 ViewPlan plan_view(int index, const ScanView& v, const Pose& X_WM, std::uint64_t seed) {
@@ -662,7 +684,13 @@ ScanResult scan(const ScanScene& scene, const Pose& X_WM_true, const ScanParams&
   } else {
     std::vector<std::thread> pool;
     pool.reserve(nthreads);
-    for (int k = 0; k < nthreads; ++k) pool.emplace_back(worker);
+    try {
+      for (int k = 0; k < nthreads; ++k) pool.emplace_back(worker);
+    } catch (...) {  // cannot start a thread: stop the others before unwinding
+      failed = true;
+      for (auto& th : pool) th.join();
+      throw;
+    }
     for (auto& th : pool) th.join();
   }
   if (error) std::rethrow_exception(error);

@@ -6,6 +6,7 @@
 #include "flashtwin/core/robot.hpp"
 #include "flashtwin/sim/casting.hpp"
 #include "flashtwin/sim/cell.hpp"
+#include "flashtwin/sim/scanner.hpp"
 
 namespace flashtwin::pipeline {
 
@@ -28,6 +29,9 @@ struct Scenario {
   sim::CellSpec cell;       ///< X_WC is set by setup_cell from `placement`
   sim::CastingParams casting;
   Placement placement;
+  sim::ScanParams scan;                ///< views, noise, seed, threads
+  double calibration_translation = 0;  ///< [m] true X_WM differs from the nominal one by this
+  double calibration_rotation = 0;     ///< [rad]
 };
 
 /// Reads and validates a scenario; relative paths inside are resolved against its folder.

@@ -35,15 +35,17 @@ struct SceneMesh {
 /// incidence below 90°; max_incidence is not applied to the camera) and nothing lies between
 /// the lit point and the camera. Surfaces closer than range_min still block the laser.
 /// Both sides of every triangle reflect (open sheets and back faces are visible).
+/// Range noise is Gaussian along the ray; a mixed point lies at a uniformly drawn fraction
+/// between the two ranges, on the bisector of the two rays, with normal −(bisector).
 /// Random draws come from a counter-based hash of (seed, view, profile/row, ray), so the output
 /// does not depend on the thread count.
 struct NoiseParams {
   double sigma = 30e-6;            ///< [m] range noise std at normal incidence, along the ray
   double incidence_gain = 1.0;     ///< sigma(θ) = sigma · (1 + gain · tan²θ), θ = laser incidence
-  double max_incidence = 1.309;    ///< [rad] (75°) no return beyond this laser incidence angle
-  double mixed_jump = 0.002;       ///< [m] depth jump between neighbouring rays that counts as a
-                                   ///< discontinuity
-                                   ///< (both rays must hit within the measuring range)
+  double max_incidence = 1.309;    ///< [rad] (75°) no return beyond this laser incidence angle,
+                                   ///< in (0, π/2)
+  double mixed_jump = 0.002;       ///< [m] range jump between neighbouring rays (both hitting
+                                   ///< within the measuring range) that counts as a discontinuity
   double mixed_probability = 0.5;  ///< chance that a discontinuity yields a mixed point: an
                                    ///< extra point between the two depths (kTruthMixed)
   double outlier_rate = 1e-4;      ///< fraction of returns replaced by sparse outliers
