@@ -7,6 +7,7 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "flashtwin/core/mesh.hpp"
 #include "test_util.hpp"
 
 namespace {
@@ -138,4 +139,78 @@ TEST(Cli, WorkspaceWritesPlotAndReach) {
   const auto j = nlohmann::json::parse(r.out);
   EXPECT_NEAR(j["max_reach_m"].get<double>(), 1.0, 0.05);
   EXPECT_GT(std::filesystem::file_size(out + "/workspace.png"), 10000u);
+}
+
+TEST(Cli, ScanWritesIdenticalCloudsForTheSameSeed) {
+  const std::string a = ftest::temp_dir("cli_scan_a"), b = ftest::temp_dir("cli_scan_b");
+  const std::string scen = ftest::source_path("scenarios/round_flange.yaml");
+  const CliRun ra = run("scan " + scen + " --json -o " + a);
+  ASSERT_EQ(ra.code, 0) << ra.err;
+  const auto j = nlohmann::json::parse(ra.out);
+  EXPECT_GT(j["points"].get<int>(), 100000);
+  EXPECT_GT(j["rays_per_s"].get<double>(), 0);
+  ASSERT_EQ(run("scan " + scen + " --json -o " + b).code, 0);
+  for (const char* f : {"/scan.ply", "/scan.pcd"}) {
+    const std::string x = slurp(a + f), y = slurp(b + f);
+    EXPECT_GT(x.size(), 1000000u);
+    EXPECT_TRUE(x == y) << f << " differs between two runs with the same seed";
+  }
+  // The cloud reads back through PCL with the same point count.
+  EXPECT_EQ(flashtwin::load_cloud(a + "/scan.pcd").size(), j["points"].get<std::size_t>());
+  EXPECT_EQ(flashtwin::load_cloud(a + "/scan.ply").size(), j["points"].get<std::size_t>());
+}
+
+TEST(Cli, RenderWritesPngsOfTheRequestedSize) {
+  const std::string out = ftest::temp_dir("cli_render");
+  const CliRun r = run("render " + ftest::source_path("scenarios/housing.yaml") +
+                       " --camera overview --width 320 --height 240 --json -o " + out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  ASSERT_EQ(j["images"].size(), 1u);
+  const std::string png = slurp(j["images"][0].get<std::string>());
+  ASSERT_GT(png.size(), 24u);
+  // PNG IHDR: width and height, big-endian, at bytes 16..23.
+  auto be32 = [&](std::size_t o) {
+    return (static_cast<unsigned char>(png[o]) << 24) | (static_cast<unsigned char>(png[o + 1]) << 16) |
+           (static_cast<unsigned char>(png[o + 2]) << 8) | static_cast<unsigned char>(png[o + 3]);
+  };
+  EXPECT_EQ(be32(16), 320u);
+  EXPECT_EQ(be32(20), 240u);
+  const CliRun bad = run("render " + ftest::source_path("scenarios/housing.yaml") +
+                         " --camera nosuchcamera -o " + out);
+  EXPECT_EQ(bad.code, 2);
+  EXPECT_NE(bad.err.find("nosuchcamera"), std::string::npos) << bad.err;
+}
+
+TEST(Cli, BadCastingInputExitsTwo) {
+  const std::string dir = ftest::temp_dir("cli_casting");
+  const std::string robot = ftest::source_path("models/robots/ft6.yaml");
+  auto scenario = [&](const std::string& name, const std::string& casting) {
+    std::ofstream f(dir + "/" + name);
+    f << "name: t\nrobot: " << robot << "\ncasting: " << casting << "\n";
+    return dir + "/" + name;
+  };
+  {  // a mesh with a hole: an open box (five faces)
+    std::ofstream f(dir + "/open.obj");
+    f << "v 0 0 0\nv 0.1 0 0\nv 0.1 0.1 0\nv 0 0.1 0\nv 0 0 0.1\nv 0.1 0 0.1\nv 0.1 0.1 0.1\nv 0 0.1 0.1\n"
+         "f 1 3 2\nf 1 4 3\nf 1 2 6\nf 1 6 5\nf 2 3 7\nf 2 7 6\nf 3 4 8\nf 3 8 7\nf 4 1 5\nf 4 5 8\n";
+  }
+  struct Case {
+    std::string casting, needle;
+  };
+  const Case cases[] = {
+      {"{family: teapot}", "casting.family: expected flanged_plate"},
+      {"{family: housing, flash: {height: [-0.001, 0.002]}}", "casting.flash.height"},
+      {"{family: mesh, mesh: nowhere.stl}", "nowhere.stl: file not found"},
+      {"{family: mesh, mesh: open.obj}", "open.obj: expected a closed surface"},
+      {"{family: housing, colour: red}", "casting.colour"},
+  };
+  int k = 0;
+  for (const auto& c : cases) {
+    const std::string path = scenario("s" + std::to_string(k++) + ".yaml", c.casting);
+    const CliRun r = run("cell " + path + " -o " + dir + "/out" + std::to_string(k));
+    EXPECT_EQ(r.code, 2) << c.casting << "\n" << r.err;
+    EXPECT_NE(r.err.find(c.needle), std::string::npos) << c.casting << "\n" << r.err;
+    EXPECT_EQ(lines(r.err), 1) << r.err;
+  }
 }

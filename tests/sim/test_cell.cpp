@@ -1,5 +1,6 @@
 #include <gtest/gtest.h>
 
+#include <cstring>
 #include <filesystem>
 
 #include "flashtwin/core/errors.hpp"
@@ -205,4 +206,63 @@ TEST(Cell, WrittenCellHasCastingMeshesAndGroundTruth) {
   EXPECT_NEAR(cad.volume(), setup.casting.nominal.volume(), 1e-6 * setup.casting.nominal.volume());
   EXPECT_TRUE(std::filesystem::exists(files.truth + "/flash_truth.json"));
   EXPECT_TRUE(std::filesystem::exists(files.truth + "/fins.stl"));
+}
+
+#include "flashtwin/sim/renderer.hpp"
+#include "flashtwin/sim/scan_cell.hpp"
+
+TEST(Cell, CastingIsVisibleFromTheDefaultCamera) {
+  const auto sc = pipeline::load_scenario(ftest::source_path("scenarios/default.yaml"));
+  const auto setup = pipeline::setup_cell(sc);
+  const std::string dir = ftest::temp_dir("cell_render");
+  const auto files = sim::write_cell(sc.robot, setup.spec, setup.casting, dir);
+  const auto m = sim::load_mjcf_file(files.mjcf);
+  const auto d = sim::make_data(m.get());
+  mj_resetDataKeyframe(m.get(), d.get(), sim::require_id(m.get(), mjOBJ_KEY, "home"));
+  mj_forward(m.get(), d.get());
+  sim::OffscreenRenderer renderer(m.get(), 400, 300);
+  const Image with = renderer.render(d.get(), "overview");
+  ASSERT_EQ(with.width(), 400);
+  ASSERT_EQ(with.height(), 300);
+  // Hide the casting (and its flash) and render again: the difference is the casting.
+  for (const char* g : {"casting_body", "casting_flash"})
+    m->geom_rgba[4 * sim::require_id(m.get(), mjOBJ_GEOM, g) + 3] = 0;
+  const Image without = renderer.render(d.get(), "overview");
+  int differing = 0;
+  for (int y = 0; y < 300; ++y)
+    for (int x = 0; x < 400; ++x) {
+      const Rgb a = with.get(x, y), b = without.get(x, y);
+      differing += std::abs(a.r - b.r) + std::abs(a.g - b.g) + std::abs(a.b - b.b) > 30;
+    }
+  EXPECT_GT(differing, 100);  // the casting covers a visible patch of the overview
+}
+
+TEST(Cell, ScanOfTheCellSeesTheCastingAndItsFlashesDeterministically) {
+  const auto sc = pipeline::load_scenario(ftest::source_path("scenarios/default.yaml"));
+  const auto setup = pipeline::setup_cell(sc);
+  const std::string dir = ftest::temp_dir("cell_scan");
+  const auto files = sim::write_cell(sc.robot, setup.spec, setup.casting, dir);
+  sim::ScanParams p = sc.scan;
+  for (auto& v : p.views) v.line.profile_spacing = 0.002;  // coarse: quick
+  const auto a = sim::scan_cell(files.mjcf, setup.casting, p, setup.spec.X_WM, setup.spec.X_WM);
+  const auto b = sim::scan_cell(files.mjcf, setup.casting, p, setup.spec.X_WM, setup.spec.X_WM);
+  ASSERT_EQ(a.result.cloud_M.size(), b.result.cloud_M.size());
+  EXPECT_EQ(std::memcmp(a.result.cloud_M.points.data(), b.result.cloud_M.points.data(),
+                        a.result.cloud_M.size() * sizeof(Eigen::Vector3f)),
+            0);
+  std::size_t body = 0, flash = 0;
+  const sim::FlashLabeler labeler(setup.casting);
+  const Pose X_CM = setup.spec.X_WC.inverse() * setup.spec.X_WM;
+  int flash_near_fin = 0;
+  for (std::size_t i = 0; i < a.result.truth.size(); ++i) {
+    body += a.result.truth[i] == sim::kTruthBody;
+    if (a.result.truth[i] == sim::kTruthFlash) {
+      ++flash;
+      // Noise-free enough to agree with the geometric labeller most of the time.
+      flash_near_fin += labeler.is_flash(X_CM * a.result.cloud_M.points[i].cast<double>());
+    }
+  }
+  EXPECT_GT(body, 10000u);
+  EXPECT_GT(flash, 500u);
+  EXPECT_GT(flash_near_fin, static_cast<int>(0.9 * flash));
 }
