@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The main job: install what is missing, build, and run the default scenario.
-# For now (issue 2) that is the cell and the kinematics demo; outputs go to out/default/.
+# For now: the default scenario's cell, scan, renders and the kinematics demo; outputs go to
+# out/default/ (the closed loop `flashtwin run` replaces this when it lands).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
@@ -8,6 +9,9 @@ FT=build/apps/flashtwin
 OUT=out/default
 mkdir -p "$OUT"
 $FT cell scenarios/default.yaml -o "$OUT"
+$FT scan scenarios/default.yaml -o "$OUT"
+$FT render scenarios/default.yaml -o "$OUT"
+$FT render scenarios/default.yaml -o "$OUT" --truth --camera casting_closeup
 $FT workspace --samples 200000 -o "$OUT"
 echo "--- forward kinematics at q = (0, -60, 30, 0, 45, 0) deg:"
 $FT fk --deg --q "0 -60 30 0 45 0" | tee "$OUT/fk.txt"
@@ -16,4 +20,5 @@ echo "--- inverse kinematics of that flange pose (all solutions within limits, d
 $FT ik --deg --pose "$pose" | tee "$OUT/ik.txt"
 echo
 echo "Outputs in $(pwd)/$OUT: cell.xml (open with: mujoco-simulate $OUT/cell.xml), robot.urdf,"
-echo "workspace.png, workspace.json, fk.txt, ik.txt"
+echo "casting_cad.stl, scan.ply/.pcd/.json, render_*.png, scan_casting_closeup.png,"
+echo "workspace.png, fk.txt, ik.txt"
