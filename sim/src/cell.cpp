@@ -175,6 +175,11 @@ std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec, const Casti
   // Fixture: two locating blocks on the table beside the casting's footprint along its x axis.
   {
     const Pose X_TableW = spec.X_WTable.inverse();
+    // Blocks stand flat on the table, turned with the casting's x axis (its yaw only).
+    const Vec3 x_T = X_TableW.linear() * spec.X_WC.linear().col(0);
+    const double yaw = std::atan2(x_T.y(), x_T.x());
+    const Mat3 R_W_fixture =
+        spec.X_WTable.linear() * Eigen::AngleAxisd(yaw, Vec3::UnitZ()).toRotationMatrix();
     for (int sx = -1; sx <= 1; sx += 2) {
       const Vec3 p_C(sx > 0 ? ca.hi.x() + 0.02 : ca.lo.x() - 0.02, 0.5 * (ca.lo.y() + ca.hi.y()), 0);
       Vec3 p_T = X_TableW * (spec.X_WC * p_C);
@@ -182,7 +187,7 @@ std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec, const Casti
       const Vec3 p_W = spec.X_WTable * p_T;
       os << "    <geom name=\"fixture_" << (sx > 0 ? "right" : "left")
          << "\" type=\"box\" size=\"0.012 0.03 0.0125\" pos=\"" << vec3_string(p_W) << "\" quat=\""
-         << quat_wxyz_string(spec.X_WC.linear()) << "\" material=\"fixture\" contype=\"0\" "
+         << quat_wxyz_string(R_W_fixture) << "\" material=\"fixture\" contype=\"0\" "
          << "conaffinity=\"0\"/>\n";
     }
   }
