@@ -6,7 +6,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 PACKAGES=(build-essential cmake ccache pkg-config git
-  libeigen3-dev libyaml-cpp-dev libspdlog-dev nlohmann-json3-dev libcli11-dev
+  libeigen3-dev libnanoflann-dev libyaml-cpp-dev libspdlog-dev nlohmann-json3-dev libcli11-dev
   liburdfdom-dev libassimp-dev libpcl-dev libembree-dev libopenvdb-dev libtbb-dev
   libmujoco-dev libmujoco-samples libosmesa6-dev libstb-dev ffmpeg
   libgtest-dev libgmock-dev libbenchmark-dev)

@@ -1,0 +1,55 @@
+#pragma once
+// k-d tree over float points (nanoflann), perception-internal.
+#include <nanoflann.hpp>
+
+#include <Eigen/Core>
+#include <memory>
+#include <vector>
+
+namespace flashtwin::perception::detail {
+
+class KdTree {
+ public:
+  /// Indexes `points` (kept by reference: they must outlive the tree).
+  explicit KdTree(const std::vector<Eigen::Vector3f>& points)
+      : adaptor_{&points}, index_(3, adaptor_, nanoflann::KDTreeSingleIndexAdaptorParams(12)) {
+    if (!points.empty()) index_.buildIndex();
+  }
+  std::size_t size() const { return adaptor_.pts->size(); }
+  /// Nearest neighbour: index and squared distance; false when the tree is empty.
+  bool nearest(const Eigen::Vector3f& q, std::uint32_t& idx, float& d2) const {
+    if (size() == 0) return false;
+    return index_.knnSearch(q.data(), 1, &idx, &d2) == 1;
+  }
+  /// k nearest neighbours (sorted by distance); returns how many were found.
+  std::size_t knn(const Eigen::Vector3f& q, std::size_t k, std::uint32_t* idx, float* d2) const {
+    if (size() == 0) return 0;
+    return index_.knnSearch(q.data(), k, idx, d2);
+  }
+  /// Indices within `radius` (not squared).
+  void radius(const Eigen::Vector3f& q, float radius,
+              std::vector<std::pair<std::uint32_t, float>>& out) const {
+    out.clear();
+    if (size() == 0) return;
+    nanoflann::SearchParams sp;
+    sp.sorted = false;
+    index_.radiusSearch(q.data(), radius * radius, out, sp);
+  }
+
+ private:
+  struct Adaptor {
+    const std::vector<Eigen::Vector3f>* pts;
+    std::size_t kdtree_get_point_count() const { return pts->size(); }
+    float kdtree_get_pt(std::size_t i, std::size_t d) const { return (*pts)[i][static_cast<int>(d)]; }
+    template <class B>
+    bool kdtree_get_bbox(B&) const {
+      return false;
+    }
+  };
+  using Index = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Adaptor>,
+                                                    Adaptor, 3, std::uint32_t>;
+  Adaptor adaptor_;
+  Index index_;
+};
+
+}  // namespace flashtwin::perception::detail

@@ -1,0 +1,574 @@
+// The project's registration: PCA principal-axis alignment + 4PCS + normal-constrained ICP.
+#include "flashtwin/perception/registration.hpp"
+
+#include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <numeric>
+
+#include "flashtwin/core/errors.hpp"
+#include "flashtwin/core/random.hpp"
+#include "flashtwin/perception/preprocess.hpp"
+#include "kdtree.hpp"
+
+namespace flashtwin::perception {
+
+using detail::KdTree;
+using Vec3f = Eigen::Vector3f;
+
+// ------------------------------------------------------------------ the target model
+
+struct ModelTarget::Impl {
+  PointCloud dense, coarse;
+  std::unique_ptr<KdTree> dense_tree, coarse_tree;
+  double diag = 0;
+  Vec3 centroid = Vec3::Zero();
+  Mat3 axes = Mat3::Identity();  // principal axes, columns by decreasing variance
+  // 4PCS: a subset of the coarse points and all their pairs sorted by distance.
+  std::vector<Vec3f> fpcs_points;
+  struct Pair {
+    float d;
+    std::uint32_t a, b;
+  };
+  std::vector<Pair> pairs;
+};
+
+namespace {
+
+double bbox_diagonal(const std::vector<Vec3f>& pts) {
+  Eigen::AlignedBox3f box;
+  for (const auto& p : pts) box.extend(p);
+  return box.isEmpty() ? 0.0 : static_cast<double>(box.diagonal().norm());
+}
+
+// Principal axes (columns by decreasing variance) and centroid of a point set.
+void principal_axes(const std::vector<Vec3f>& pts, Vec3& centroid, Mat3& axes) {
+  centroid.setZero();
+  for (const auto& p : pts) centroid += p.cast<double>();
+  centroid /= static_cast<double>(pts.size());
+  Mat3 C = Mat3::Zero();
+  for (const auto& p : pts) {
+    const Vec3 d = p.cast<double>() - centroid;
+    C += d * d.transpose();
+  }
+  Eigen::SelfAdjointEigenSolver<Mat3> es(C);
+  // Eigen sorts ascending: reverse to decreasing variance.
+  axes.col(0) = es.eigenvectors().col(2);
+  axes.col(1) = es.eigenvectors().col(1);
+  axes.col(2) = es.eigenvectors().col(0);
+}
+
+void finish_target(ModelTarget::Impl& t, const TargetParams& p) {
+  t.diag = bbox_diagonal(t.dense.points);
+  t.dense_tree = std::make_unique<KdTree>(t.dense.points);
+  t.coarse = voxel_downsample(t.dense, t.diag * p.coarse_voxel);
+  t.coarse_tree = std::make_unique<KdTree>(t.coarse.points);
+  principal_axes(t.dense.points, t.centroid, t.axes);
+  // 4PCS works on at most ~600 evenly spread target points.
+  const std::size_t stride = std::max<std::size_t>(1, t.coarse.size() / 600);
+  for (std::size_t i = 0; i < t.coarse.size(); i += stride) t.fpcs_points.push_back(t.coarse.points[i]);
+  const auto n = static_cast<std::uint32_t>(t.fpcs_points.size());
+  t.pairs.reserve(static_cast<std::size_t>(n) * (n - 1) / 2);
+  for (std::uint32_t a = 0; a < n; ++a)
+    for (std::uint32_t b = a + 1; b < n; ++b)
+      t.pairs.push_back({(t.fpcs_points[a] - t.fpcs_points[b]).norm(), a, b});
+  std::sort(t.pairs.begin(), t.pairs.end(), [](const auto& x, const auto& y) { return x.d < y.d; });
+}
+
+}  // namespace
+
+ModelTarget::ModelTarget(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+ModelTarget::~ModelTarget() = default;
+double ModelTarget::diagonal() const { return impl_->diag; }
+const PointCloud& ModelTarget::dense() const { return impl_->dense; }
+const PointCloud& ModelTarget::coarse() const { return impl_->coarse; }
+
+std::shared_ptr<const ModelTarget> ModelTarget::from_mesh(const TriangleMesh& mesh,
+                                                          const TargetParams& params) {
+  if (mesh.triangles.empty()) throw ArgumentError("target mesh: expected triangles, got none");
+  std::vector<double> cum(mesh.triangles.size());
+  double total = 0;
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+    const auto& f = mesh.triangles[t];
+    total += 0.5 * (mesh.vertices[f[1]] - mesh.vertices[f[0]])
+                       .cross(mesh.vertices[f[2]] - mesh.vertices[f[0]])
+                       .norm();
+    cum[t] = total;
+  }
+  if (!(total > 0) || !std::isfinite(total))
+    throw ArgumentError("target mesh: expected a positive, finite surface area");
+  auto impl = std::make_unique<Impl>();
+  Rng rng(params.seed);
+  const int n = std::max(100, params.mesh_samples);
+  for (int i = 0; i < n; ++i) {
+    // Area-uniform: triangle by cumulative area, point by the square-root barycentric trick.
+    const double u = rng.uniform() * total;
+    const std::size_t t = std::min<std::size_t>(
+        std::lower_bound(cum.begin(), cum.end(), u) - cum.begin(), cum.size() - 1);
+    const auto& f = mesh.triangles[t];
+    const double r1 = std::sqrt(rng.uniform()), r2 = rng.uniform();
+    const Vec3 p = (1 - r1) * mesh.vertices[f[0]] + r1 * (1 - r2) * mesh.vertices[f[1]] +
+                   r1 * r2 * mesh.vertices[f[2]];
+    impl->dense.points.push_back(p.cast<float>());
+    impl->dense.normals.push_back(mesh.triangle_normal(t).cast<float>());
+  }
+  finish_target(*impl, params);
+  return std::shared_ptr<const ModelTarget>(new ModelTarget(std::move(impl)));
+}
+
+std::shared_ptr<const ModelTarget> ModelTarget::from_cloud(const PointCloud& cloud,
+                                                           const TargetParams& params) {
+  const std::string why = validate_cloud(cloud, 10);
+  if (!why.empty()) throw ArgumentError("target cloud: " + why);
+  auto impl = std::make_unique<Impl>();
+  impl->dense.points = cloud.points;
+  if (cloud.normals.size() == cloud.size()) impl->dense.normals = cloud.normals;
+  else estimate_normals(impl->dense, params.normal_k);
+  finish_target(*impl, params);
+  return std::shared_ptr<const ModelTarget>(new ModelTarget(std::move(impl)));
+}
+
+// ------------------------------------------------------------------ ICP
+
+namespace {
+
+struct IcpOptions {
+  bool point_to_plane = true;
+  bool reciprocal = true;
+  double cos_normal = -1;   // reject pairs with |n_s·n_t| below this (−1: no normal test)
+  double max_dist = 0.01;   // [m] initial correspondence distance
+  double min_dist = 0.001;  // [m] floor of the shrinking distance
+  int iterations = 30;
+  double converge = 1e-7;
+};
+
+struct IcpResult {
+  Pose T = Pose::Identity();
+  double rmse = 0;
+  std::size_t pairs = 0;
+  int iterations = 0;
+};
+
+Mat3 skew_exp(const Vec3& w) {
+  const double a = w.norm();
+  if (a < 1e-15) return Mat3::Identity();
+  return Eigen::AngleAxisd(a, w / a).toRotationMatrix();
+}
+
+IcpResult icp(const std::vector<Vec3f>& src, const std::vector<Vec3f>& src_normals,
+              const KdTree& src_tree, const ModelTarget::Impl& tgt, const Pose& T0,
+              const IcpOptions& o) {
+  IcpResult r;
+  r.T = T0;
+  double thr = o.max_dist, prev = std::numeric_limits<double>::infinity();
+  const bool use_normals = o.cos_normal > -1 && src_normals.size() == src.size();
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> pairs;
+  pairs.reserve(src.size());
+  for (int it = 0; it < o.iterations; ++it) {
+    const Eigen::Matrix3f R = r.T.linear().cast<float>();
+    const Vec3f t = r.T.translation().cast<float>();
+    const Pose Tinv = r.T.inverse();
+    const Eigen::Matrix3f Ri = Tinv.linear().cast<float>();
+    const Vec3f ti = Tinv.translation().cast<float>();
+    const float thr2 = static_cast<float>(thr * thr);
+    pairs.clear();
+    double sum2 = 0;
+    for (std::uint32_t i = 0; i < src.size(); ++i) {
+      const Vec3f p = R * src[i] + t;
+      std::uint32_t j;
+      float d2;
+      if (!tgt.dense_tree->nearest(p, j, d2) || d2 > thr2) continue;
+      if (use_normals &&
+          std::abs((R * src_normals[i]).dot(tgt.dense.normals[j])) < static_cast<float>(o.cos_normal))
+        continue;
+      if (o.reciprocal) {
+        std::uint32_t back;
+        float bd2;
+        src_tree.nearest(Ri * tgt.dense.points[j] + ti, back, bd2);
+        if (back != i) continue;
+      }
+      pairs.emplace_back(i, j);
+      sum2 += d2;
+    }
+    r.pairs = pairs.size();
+    r.iterations = it + 1;
+    if (pairs.size() < 6) break;
+    r.rmse = std::sqrt(sum2 / static_cast<double>(pairs.size()));
+    Pose dT = Pose::Identity();
+    if (o.point_to_plane) {
+      // Linearised point-to-plane: rows [ (p × n)ᵀ  nᵀ ] x = (q − p)·n, x = [ω; v].
+      Eigen::Matrix<double, 6, 6> AtA = Eigen::Matrix<double, 6, 6>::Zero();
+      Eigen::Matrix<double, 6, 1> Atb = Eigen::Matrix<double, 6, 1>::Zero();
+      for (const auto& [i, j] : pairs) {
+        const Vec3 p = r.T * src[i].cast<double>();
+        const Vec3 q = tgt.dense.points[j].cast<double>();
+        const Vec3 n = tgt.dense.normals[j].cast<double>();
+        Eigen::Matrix<double, 6, 1> a;
+        a << p.cross(n), n;
+        AtA += a * a.transpose();
+        Atb += a * (q - p).dot(n);
+      }
+      const Eigen::Matrix<double, 6, 1> x = AtA.ldlt().solve(Atb);
+      if (!x.allFinite()) break;
+      dT.linear() = skew_exp(x.head<3>());
+      dT.translation() = x.tail<3>();
+    } else {
+      Eigen::Matrix<double, 3, Eigen::Dynamic> A(3, pairs.size()), B(3, pairs.size());
+      for (std::size_t k = 0; k < pairs.size(); ++k) {
+        A.col(static_cast<long>(k)) = r.T * src[pairs[k].first].cast<double>();
+        B.col(static_cast<long>(k)) = tgt.dense.points[pairs[k].second].cast<double>();
+      }
+      dT.matrix() = Eigen::umeyama(A, B, false);
+    }
+    r.T = dT * r.T;
+    const double step = Eigen::AngleAxisd(dT.linear()).angle() * tgt.diag + dT.translation().norm();
+    // Coarse to fine: the correspondence distance follows the residual down to its floor.
+    thr = std::max(o.min_dist, std::min(thr, 4.0 * r.rmse));
+    if (std::abs(prev - r.rmse) <= o.converge * std::max(prev, 1e-12) && step < 1e-9 * tgt.diag) break;
+    prev = r.rmse;
+  }
+  return r;
+}
+
+// Share of points within `delta` of the target after T (largest common point set).
+double lcp_score(const std::vector<Vec3f>& pts, const ModelTarget::Impl& tgt, const Pose& T, double delta) {
+  if (pts.empty()) return 0;
+  const Eigen::Matrix3f R = T.linear().cast<float>();
+  const Vec3f t = T.translation().cast<float>();
+  const float d2max = static_cast<float>(delta * delta);
+  std::size_t in = 0;
+  for (const auto& p : pts) {
+    std::uint32_t j;
+    float d2;
+    if (tgt.dense_tree->nearest(R * p + t, j, d2) && d2 <= d2max) ++in;
+  }
+  return static_cast<double>(in) / static_cast<double>(pts.size());
+}
+
+// ------------------------------------------------------------------ 4PCS
+
+struct Hypothesis {
+  Pose T;
+  double score = 0;
+  std::string stage;
+};
+
+// Closest points of lines a0 + s(a1 − a0) and b0 + t(b1 − b0): returns s, t.
+bool line_params(const Vec3& a0, const Vec3& a1, const Vec3& b0, const Vec3& b1, double& s, double& t) {
+  const Vec3 u = a1 - a0, v = b1 - b0, w = a0 - b0;
+  const double a = u.dot(u), b = u.dot(v), c = v.dot(v), d = u.dot(w), e = v.dot(w);
+  const double den = a * c - b * b;
+  if (den < 1e-12 * a * c) return false;  // parallel
+  s = (b * e - c * d) / den;
+  t = (a * e - b * d) / den;
+  return true;
+}
+
+std::vector<Hypothesis> four_pcs(const std::vector<Vec3f>& src, const ModelTarget::Impl& tgt,
+                                 const RegistrationParams& p, Rng& rng) {
+  std::vector<Hypothesis> out;
+  const std::size_t n = src.size();
+  if (n < 8 || tgt.fpcs_points.size() < 8) return out;
+  const double delta = tgt.diag * p.fpcs_delta;
+  const double src_diam = bbox_diagonal(src);
+  const double width = p.fpcs_overlap * std::min(src_diam, tgt.diag);
+  // Points to verify candidates on (a fixed random subset).
+  std::vector<Vec3f> verify;
+  for (int k = 0; k < 300; ++k) verify.push_back(src[rng.next() % n]);
+  const float v2 = static_cast<float>(delta * delta);
+  double best_score = 0;
+  std::vector<std::pair<std::uint32_t, float>> nb;
+  for (int base = 0; base < p.fpcs_bases; ++base) {
+    // Wide coplanar base: p1 random, p2 and p3 far from it, p4 near their plane and far.
+    const Vec3 b1 = src[rng.next() % n].cast<double>();
+    Vec3 b2, b3, b4;
+    bool ok = false;
+    for (int tries = 0; tries < 60 && !ok; ++tries) {
+      b2 = src[rng.next() % n].cast<double>();
+      const double d12 = (b2 - b1).norm();
+      ok = d12 > 0.5 * width && d12 < 1.2 * width;
+    }
+    if (!ok) continue;
+    ok = false;
+    for (int tries = 0; tries < 60 && !ok; ++tries) {
+      b3 = src[rng.next() % n].cast<double>();
+      const double h = (b3 - b1).cross(b2 - b1).norm() / (b2 - b1).norm();
+      ok = h > 0.25 * width && (b3 - b1).norm() < 1.2 * width && (b3 - b2).norm() < 1.2 * width;
+    }
+    if (!ok) continue;
+    const Vec3 nrm = (b2 - b1).cross(b3 - b1).normalized();
+    double best_spread = -1;
+    for (int tries = 0; tries < 200; ++tries) {
+      const Vec3 c = src[rng.next() % n].cast<double>();
+      if (std::abs(nrm.dot(c - b1)) > 0.5 * delta) continue;
+      const double spread = std::min({(c - b1).norm(), (c - b2).norm(), (c - b3).norm()});
+      if (spread > best_spread && (c - b1).norm() < 1.2 * width) {
+        best_spread = spread;
+        b4 = c;
+      }
+    }
+    if (best_spread < 0.2 * width) continue;
+    // Pair the four points so that the two segments cross: invariants r1, r2 in (0, 1).
+    const Vec3 pts[4] = {b1, b2, b3, b4};
+    const int pairings[3][4] = {{0, 1, 2, 3}, {0, 2, 1, 3}, {0, 3, 1, 2}};
+    int pa = -1;
+    double r1 = 0, r2 = 0;
+    for (int k = 0; k < 3 && pa < 0; ++k) {
+      double s, t;
+      const auto& q = pairings[k];
+      if (line_params(pts[q[0]], pts[q[1]], pts[q[2]], pts[q[3]], s, t) && s > 0.05 && s < 0.95 &&
+          t > 0.05 && t < 0.95) {
+        pa = k;
+        r1 = s;
+        r2 = t;
+      }
+    }
+    if (pa < 0) continue;
+    const auto& q = pairings[pa];
+    const Vec3 B[4] = {pts[q[0]], pts[q[1]], pts[q[2]], pts[q[3]]};
+    const double d1 = (B[1] - B[0]).norm(), d2 = (B[3] - B[2]).norm();
+    const double cos_base = (B[1] - B[0]).normalized().dot((B[3] - B[2]).normalized());
+    // Target pairs of matching lengths (both orders) and their intermediate points.
+    auto band = [&](double d) {
+      const auto lo = std::lower_bound(tgt.pairs.begin(), tgt.pairs.end(), static_cast<float>(d - delta),
+                                       [](const auto& x, float v) { return x.d < v; });
+      const auto hi = std::upper_bound(tgt.pairs.begin(), tgt.pairs.end(), static_cast<float>(d + delta),
+                                       [](float v, const auto& x) { return v < x.d; });
+      return std::make_pair(lo, hi);
+    };
+    const auto [lo1, hi1] = band(d1);
+    const auto [lo2, hi2] = band(d2);
+    std::vector<Vec3f> e1;
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> e1_pairs;
+    for (auto it = lo1; it != hi1; ++it)
+      for (int o = 0; o < 2; ++o) {
+        const std::uint32_t a = o ? it->b : it->a, b = o ? it->a : it->b;
+        e1.push_back(tgt.fpcs_points[a] + static_cast<float>(r1) * (tgt.fpcs_points[b] - tgt.fpcs_points[a]));
+        e1_pairs.emplace_back(a, b);
+      }
+    if (e1.empty()) continue;
+    const KdTree e1_tree(e1);
+    int candidates = 0;
+    for (auto it = lo2; it != hi2 && candidates < 400; ++it)
+      for (int o = 0; o < 2 && candidates < 400; ++o) {
+        const std::uint32_t c = o ? it->b : it->a, d = o ? it->a : it->b;
+        const Vec3f e2 = tgt.fpcs_points[c] + static_cast<float>(r2) * (tgt.fpcs_points[d] - tgt.fpcs_points[c]);
+        e1_tree.radius(e2, static_cast<float>(delta), nb);
+        for (const auto& [k, dist] : nb) {
+          const auto [a, b] = e1_pairs[k];
+          const Vec3 Q[4] = {tgt.fpcs_points[a].cast<double>(), tgt.fpcs_points[b].cast<double>(),
+                             tgt.fpcs_points[c].cast<double>(), tgt.fpcs_points[d].cast<double>()};
+          // The angle between the two segments must match the base's.
+          if (std::abs((Q[1] - Q[0]).normalized().dot((Q[3] - Q[2]).normalized()) - cos_base) > 0.1)
+            continue;
+          ++candidates;
+          Eigen::Matrix<double, 3, 4> S, D;
+          for (int m = 0; m < 4; ++m) {
+            S.col(m) = B[m];
+            D.col(m) = Q[m];
+          }
+          Pose T;
+          T.matrix() = Eigen::umeyama(S, D, false);
+          // Largest common point set with early exit when it cannot beat half the best.
+          const Eigen::Matrix3f R = T.linear().cast<float>();
+          const Vec3f t = T.translation().cast<float>();
+          std::size_t in = 0, seen = 0;
+          for (const auto& v : verify) {
+            std::uint32_t j;
+            float dd;
+            ++seen;
+            if (tgt.dense_tree->nearest(R * v + t, j, dd) && dd <= v2) ++in;
+            if (seen == 60 && static_cast<double>(in) / 60 < 0.5 * best_score) break;
+          }
+          const double score = static_cast<double>(in) / static_cast<double>(verify.size());
+          if (seen == verify.size() && score > 0.3) {
+            out.push_back({T, score, "4pcs"});
+            best_score = std::max(best_score, score);
+          }
+        }
+      }
+    if (best_score > 0.9) break;  // early exit: a convincing alignment
+  }
+  std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.score > b.score; });
+  if (out.size() > 12) out.resize(12);
+  return out;
+}
+
+bool distinct(const Pose& a, const Pose& b, double diag) {
+  return rotation_distance(a.linear(), b.linear()) > 10 * M_PI / 180 ||
+         (a.translation() - b.translation()).norm() > diag / 20;
+}
+
+}  // namespace
+
+// ------------------------------------------------------------------ the pipeline
+
+RegistrationResult register_scan(const PointCloud& source, const ModelTarget& target,
+                                 const RegistrationParams& p) {
+  const auto t0 = std::chrono::steady_clock::now();
+  RegistrationResult res;
+  auto finish = [&] {
+    res.time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return res;
+  };
+  const std::string why = validate_cloud(source, 10);
+  if (!why.empty()) {
+    res.message = "source: " + why;
+    return finish();
+  }
+  const ModelTarget::Impl& tgt = target.impl();
+  const double diag = tgt.diag;
+
+  // Preprocessing: fine voxel grid, optional table removal, coarse voxel grid + outlier removal.
+  PointCloud fine = voxel_downsample(PointCloud{source.points, {}, {}}, diag * p.fine_voxel);
+  if (p.remove_support_plane)
+    fine = remove_support_plane(fine, diag / 150, diag / 60, 0.2, 7);
+  if (fine.size() < 10) {
+    res.message = "source: fewer than 10 points left after preprocessing";
+    return finish();
+  }
+  PointCloud coarse = voxel_downsample(fine, diag * p.coarse_voxel);
+  if (coarse.size() > static_cast<std::size_t>(p.sor_k) + 1)
+    coarse = remove_statistical_outliers(coarse, p.sor_k, p.sor_std);
+  if (coarse.size() < 10) {
+    res.message = "source: fewer than 10 points at the coarse level";
+    return finish();
+  }
+  estimate_normals(coarse, p.normal_k, p.viewpoint);
+  const KdTree coarse_tree(coarse.points);
+
+  // Fine ICP subset (at most 4000 points) with normals from the whole fine cloud.
+  PointCloud sub;
+  {
+    const std::size_t stride = std::max<std::size_t>(1, fine.size() / 4000);
+    for (std::size_t i = 0; i < fine.size(); i += stride) sub.points.push_back(fine.points[i]);
+    PointCloud with_n = fine;
+    // Normals on the subset only: neighbours come from the whole fine cloud.
+    const KdTree fine_tree(fine.points);
+    sub.normals.resize(sub.size());
+    std::vector<std::uint32_t> idx(p.normal_k);
+    std::vector<float> d2(p.normal_k);
+    for (std::size_t i = 0; i < sub.size(); ++i) {
+      const std::size_t m = fine_tree.knn(sub.points[i], p.normal_k, idx.data(), d2.data());
+      Vec3 c = Vec3::Zero();
+      for (std::size_t j = 0; j < m; ++j) c += fine.points[idx[j]].cast<double>();
+      c /= static_cast<double>(std::max<std::size_t>(m, 1));
+      Mat3 C = Mat3::Zero();
+      for (std::size_t j = 0; j < m; ++j) {
+        const Vec3 d = fine.points[idx[j]].cast<double>() - c;
+        C += d * d.transpose();
+      }
+      sub.normals[i] = Eigen::SelfAdjointEigenSolver<Mat3>(C).eigenvectors().col(0).cast<float>();
+    }
+  }
+  const KdTree sub_tree(sub.points);
+
+  IcpOptions coarse_icp;
+  coarse_icp.point_to_plane = false;
+  coarse_icp.reciprocal = p.reciprocal;
+  coarse_icp.cos_normal = std::cos(p.normal_angle);
+  coarse_icp.max_dist = diag / 8;
+  coarse_icp.min_dist = diag * p.coarse_voxel;
+  coarse_icp.iterations = 20;
+  coarse_icp.converge = 1e-4;
+  const double score_delta = diag * p.coarse_voxel * 0.5;
+
+  Rng rng(12345);
+  std::vector<Hypothesis> hyps;
+  auto refine_and_score = [&](const Pose& T, const std::string& stage) {
+    const IcpResult r = icp(coarse.points, coarse.normals, coarse_tree, tgt, T, coarse_icp);
+    hyps.push_back({r.T, lcp_score(coarse.points, tgt, r.T, score_delta), stage});
+  };
+  if (p.use_pca) {
+    Vec3 cs;
+    Mat3 As;
+    principal_axes(coarse.points, cs, As);
+    for (int k = 0; k < 8; ++k) {
+      const Vec3 s(k & 1 ? -1 : 1, k & 2 ? -1 : 1, k & 4 ? -1 : 1);
+      const Mat3 R = tgt.axes * s.asDiagonal() * As.transpose();
+      if (R.determinant() < 0) continue;  // the 4 reflections are not rigid motions
+      Pose T = Pose::Identity();
+      T.linear() = R;
+      T.translation() = tgt.centroid - R * cs;
+      refine_and_score(T, "pca");
+    }
+  }
+  const double pca_best =
+      hyps.empty() ? 0.0 : std::max_element(hyps.begin(), hyps.end(), [](const auto& a, const auto& b) {
+                             return a.score < b.score;
+                           })->score;
+  if (p.use_4pcs && pca_best < p.pca_accept_fitness) {
+    for (const auto& h : four_pcs(coarse.points, tgt, p, rng)) refine_and_score(h.T, "4pcs");
+  }
+  if (hyps.empty()) {
+    res.message = "no global alignment hypothesis (PCA and 4PCS disabled or failed)";
+    return finish();
+  }
+  std::sort(hyps.begin(), hyps.end(), [](const auto& a, const auto& b) { return a.score > b.score; });
+
+  // Fine ICP: point-to-plane (or point-to-point), reciprocal, normal-constrained.
+  IcpOptions fine_icp;
+  fine_icp.point_to_plane = p.point_to_plane;
+  fine_icp.reciprocal = p.reciprocal;
+  fine_icp.cos_normal = std::cos(p.normal_angle);
+  fine_icp.max_dist = diag * p.coarse_voxel;
+  fine_icp.min_dist = diag * p.fine_voxel;
+  fine_icp.iterations = p.icp_iterations;
+  fine_icp.converge = p.icp_converge;
+  const IcpResult best = icp(sub.points, sub.normals, sub_tree, tgt, hyps[0].T, fine_icp);
+
+  // Verdict: inliers of the fine subset, their RMSE, and the best distinct alternative.
+  const double inlier = diag * p.fine_voxel;
+  {
+    const Eigen::Matrix3f R = best.T.linear().cast<float>();
+    const Vec3f t = best.T.translation().cast<float>();
+    std::size_t in = 0;
+    double sum2 = 0;
+    for (const auto& q : sub.points) {
+      std::uint32_t j;
+      float d2;
+      if (tgt.dense_tree->nearest(R * q + t, j, d2) && d2 <= inlier * inlier) {
+        ++in;
+        sum2 += d2;
+      }
+    }
+    res.fitness = static_cast<double>(in) / static_cast<double>(sub.size());
+    res.rmse = in ? std::sqrt(sum2 / static_cast<double>(in)) : 0;
+  }
+  // Ambiguity: unexplained share of the best over that of the best distinct alternative,
+  // both refined at the fine level (symmetric parts give ~1).
+  res.ambiguity = 0;
+  for (std::size_t k = 1; k < hyps.size(); ++k) {
+    if (!distinct(hyps[k].T, best.T, diag)) continue;
+    IcpOptions quick = fine_icp;
+    quick.iterations = 10;
+    const IcpResult alt = icp(sub.points, sub.normals, sub_tree, tgt, hyps[k].T, quick);
+    if (!distinct(alt.T, best.T, diag)) continue;
+    const double s_best = lcp_score(sub.points, tgt, best.T, inlier);
+    const double s_alt = lcp_score(sub.points, tgt, alt.T, inlier);
+    res.ambiguity = std::min(1.0, (1 - s_best + 1e-3) / (1 - s_alt + 1e-3));
+    break;
+  }
+  res.T_target_source = best.T;
+  res.stage = hyps[0].stage;
+  res.ran = true;
+  const bool fit_ok = res.fitness >= p.min_fitness;
+  const bool rmse_ok = res.rmse <= diag * p.max_rmse;
+  const bool unique = res.ambiguity <= p.max_ambiguity;
+  res.confident = fit_ok && rmse_ok && unique;
+  if (!fit_ok)
+    res.message = "low inlier fraction " + std::to_string(res.fitness) + " (need " +
+                  std::to_string(p.min_fitness) + ")";
+  else if (!rmse_ok)
+    res.message = "inlier RMSE " + std::to_string(res.rmse * 1000) + " mm too high";
+  else if (!unique)
+    res.message = "ambiguous: a distinct pose fits almost as well (symmetric part?), ambiguity " +
+                  std::to_string(res.ambiguity);
+  else
+    res.message = "ok";
+  return finish();
+}
+
+}  // namespace flashtwin::perception
