@@ -4,7 +4,6 @@
 #include <algorithm>
 #include <cmath>
 #include <numeric>
-#include <unordered_map>
 
 #include "flashtwin/core/errors.hpp"
 #include "flashtwin/core/random.hpp"
@@ -33,40 +32,39 @@ PointCloud voxel_downsample(const PointCloud& cloud, double voxel) {
   FT_ASSERT(voxel > 0);
   const bool has_n = cloud.normals.size() == cloud.size() && !cloud.empty();
   const double inv = 1.0 / voxel;
-  struct Acc {
-    Eigen::Vector3d p = Eigen::Vector3d::Zero(), n = Eigen::Vector3d::Zero();
-    int count = 0;
-  };
-  std::unordered_map<std::uint64_t, int> slot;
-  std::vector<Acc> acc;
-  slot.reserve(cloud.size() / 4 + 16);
+  // Sort points by voxel key, then average each run: faster than hashing and deterministic
+  // (output ordered by voxel key).
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(cloud.size());
   for (std::size_t i = 0; i < cloud.size(); ++i) {
     const Vec3f& p = cloud.points[i];
     const auto cx = static_cast<std::int64_t>(std::floor(p.x() * inv));
     const auto cy = static_cast<std::int64_t>(std::floor(p.y() * inv));
     const auto cz = static_cast<std::int64_t>(std::floor(p.z() * inv));
-    const std::uint64_t key = (static_cast<std::uint64_t>(cx & 0x1fffff) << 42) |
-                              (static_cast<std::uint64_t>(cy & 0x1fffff) << 21) |
-                              static_cast<std::uint64_t>(cz & 0x1fffff);
-    auto [it, fresh] = slot.emplace(key, static_cast<int>(acc.size()));
-    if (fresh) acc.emplace_back();
-    Acc& a = acc[it->second];
-    a.p += p.cast<double>();
-    if (has_n) {
-      // Average normals up to sign, relative to the first one of the voxel.
-      const Eigen::Vector3d n = cloud.normals[i].cast<double>();
-      a.n += (a.count > 0 && a.n.dot(n) < 0) ? -n : n;
-    }
-    ++a.count;
+    keyed[i] = {(static_cast<std::uint64_t>(cx & 0x1fffff) << 42) |
+                    (static_cast<std::uint64_t>(cy & 0x1fffff) << 21) |
+                    static_cast<std::uint64_t>(cz & 0x1fffff),
+                static_cast<std::uint32_t>(i)};
   }
+  std::sort(keyed.begin(), keyed.end());
   PointCloud out;
-  out.points.reserve(acc.size());
-  for (const Acc& a : acc) {
-    out.points.push_back((a.p / a.count).cast<float>());
-    if (has_n) {
-      const double len = a.n.norm();
-      out.normals.push_back(len > 0 ? Vec3f((a.n / len).cast<float>()) : Vec3f::UnitZ());
+  for (std::size_t a = 0; a < keyed.size();) {
+    std::size_t b = a;
+    Eigen::Vector3d p = Eigen::Vector3d::Zero(), n = Eigen::Vector3d::Zero();
+    for (; b < keyed.size() && keyed[b].first == keyed[a].first; ++b) {
+      const std::uint32_t i = keyed[b].second;
+      p += cloud.points[i].cast<double>();
+      if (has_n) {
+        // Average normals up to sign, relative to the first one of the voxel.
+        const Eigen::Vector3d ni = cloud.normals[i].cast<double>();
+        n += (b > a && n.dot(ni) < 0) ? -ni : ni;
+      }
     }
+    out.points.push_back((p / static_cast<double>(b - a)).cast<float>());
+    if (has_n) {
+      const double len = n.norm();
+      out.normals.push_back(len > 0 ? Vec3f((n / len).cast<float>()) : Vec3f::UnitZ());
+    }
+    a = b;
   }
   return out;
 }
@@ -106,6 +104,7 @@ void estimate_normals(PointCloud& cloud, int k, const Vec3& viewpoint) {
   std::vector<std::uint32_t> idx(kk);
   std::vector<float> d2(kk);
   std::vector<std::vector<std::uint32_t>> graph(viewpoint.allFinite() ? 0 : n);
+#pragma omp parallel for schedule(static) firstprivate(idx, d2)
   for (std::size_t i = 0; i < n; ++i) {
     const std::size_t m = tree.knn(cloud.points[i], kk, idx.data(), d2.data());
     Eigen::Vector3d c = Eigen::Vector3d::Zero();

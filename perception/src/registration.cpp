@@ -7,11 +7,16 @@
 #include <chrono>
 #include <cmath>
 #include <numeric>
+#include <unordered_map>
 
 #include "flashtwin/core/errors.hpp"
 #include "flashtwin/core/random.hpp"
 #include "flashtwin/perception/preprocess.hpp"
 #include "kdtree.hpp"
+
+#include <omp.h>
+
+#include <spdlog/spdlog.h>
 
 namespace flashtwin::perception {
 
@@ -33,6 +38,36 @@ struct ModelTarget::Impl {
     std::uint32_t a, b;
   };
   std::vector<Pair> pairs;
+  // Nearest-sample lookup in a narrow band around the surface: cell → index of the dense
+  // sample nearest the cell centre. O(1) correspondences for the final ICP polish.
+  double cell = 0;
+  // Open-addressing hash table (linear probing): key+1 (0 = empty) and the sample index.
+  std::vector<std::uint64_t> band_keys;
+  std::vector<std::uint32_t> band_vals;
+  std::uint64_t band_mask = 0;
+  std::uint64_t cell_key(const Vec3f& p) const {
+    const auto f = [&](float v) {
+      return static_cast<std::uint64_t>(static_cast<std::int64_t>(std::floor(v / cell)) & 0x1fffff);
+    };
+    return (f(p.x()) << 42) | (f(p.y()) << 21) | f(p.z());
+  }
+  static std::uint64_t mix(std::uint64_t k) {
+    k ^= k >> 33;
+    k *= 0xff51afd7ed558ccdULL;
+    k ^= k >> 33;
+    return k;
+  }
+  bool nearest_in_band(const Vec3f& p, std::uint32_t& j) const {
+    if (band_keys.empty()) return false;
+    const std::uint64_t key = cell_key(p) + 1;
+    for (std::uint64_t h = mix(key) & band_mask;; h = (h + 1) & band_mask) {
+      if (band_keys[h] == key) {
+        j = band_vals[h];
+        return true;
+      }
+      if (band_keys[h] == 0) return false;
+    }
+  }
 };
 
 namespace {
@@ -75,6 +110,34 @@ void finish_target(ModelTarget::Impl& t, const TargetParams& p) {
     for (std::uint32_t b = a + 1; b < n; ++b)
       t.pairs.push_back({(t.fpcs_points[a] - t.fpcs_points[b]).norm(), a, b});
   std::sort(t.pairs.begin(), t.pairs.end(), [](const auto& x, const auto& y) { return x.d < y.d; });
+  // The band: cells within 3 cells of any sample, each with the sample nearest its centre.
+  t.cell = t.diag * p.fine_voxel;
+  const int r = 3;
+  std::unordered_map<std::uint64_t, std::pair<float, std::uint32_t>> best;
+  best.reserve(t.dense.size() * 30);
+  for (std::uint32_t i = 0; i < t.dense.size(); ++i) {
+    const Vec3f& q = t.dense.points[i];
+    const Eigen::Vector3f c0 = (q / static_cast<float>(t.cell)).array().floor();
+    for (int dx = -r; dx <= r; ++dx)
+      for (int dy = -r; dy <= r; ++dy)
+        for (int dz = -r; dz <= r; ++dz) {
+          const Vec3f centre = (c0 + Vec3f(dx + 0.5f, dy + 0.5f, dz + 0.5f)) * static_cast<float>(t.cell);
+          const float d2 = (centre - q).squaredNorm();
+          auto [it, fresh] = best.emplace(t.cell_key(centre), std::make_pair(d2, i));
+          if (!fresh && d2 < it->second.first) it->second = {d2, i};
+        }
+  }
+  std::uint64_t cap = 16;
+  while (cap < 2 * best.size()) cap <<= 1;
+  t.band_keys.assign(cap, 0);
+  t.band_vals.assign(cap, 0);
+  t.band_mask = cap - 1;
+  for (const auto& [key, v] : best) {
+    std::uint64_t h = ModelTarget::Impl::mix(key + 1) & t.band_mask;
+    while (t.band_keys[h] != 0) h = (h + 1) & t.band_mask;
+    t.band_keys[h] = key + 1;
+    t.band_vals[h] = v.second;
+  }
 }
 
 }  // namespace
@@ -157,13 +220,28 @@ Mat3 skew_exp(const Vec3& w) {
   return Eigen::AngleAxisd(a, w / a).toRotationMatrix();
 }
 
+// Target level an ICP matches against: the dense samples or the coarse voxel centroids.
+struct TargetLevel {
+  const std::vector<Vec3f>* points;
+  const std::vector<Vec3f>* normals;
+  const KdTree* tree;
+};
+
+TargetLevel dense_level(const ModelTarget::Impl& t) { return {&t.dense.points, &t.dense.normals, t.dense_tree.get()}; }
+TargetLevel coarse_level(const ModelTarget::Impl& t) { return {&t.coarse.points, &t.coarse.normals, t.coarse_tree.get()}; }
+
 IcpResult icp(const std::vector<Vec3f>& src, const std::vector<Vec3f>& src_normals,
-              const KdTree& src_tree, const ModelTarget::Impl& tgt, const Pose& T0,
+              const KdTree& src_tree, const TargetLevel& tgt, double diag, const Pose& T0,
               const IcpOptions& o) {
   IcpResult r;
   r.T = T0;
   double thr = o.max_dist, prev = std::numeric_limits<double>::infinity();
   const bool use_normals = o.cos_normal > -1 && src_normals.size() == src.size();
+  const auto n = static_cast<long>(src.size());
+  // Per-point match (index or −1) and squared distance: filled in parallel, read in order, so
+  // the result does not depend on the thread count.
+  std::vector<std::int64_t> match(src.size());
+  std::vector<float> dist2(src.size());
   std::vector<std::pair<std::uint32_t, std::uint32_t>> pairs;
   pairs.reserve(src.size());
   for (int it = 0; it < o.iterations; ++it) {
@@ -173,25 +251,31 @@ IcpResult icp(const std::vector<Vec3f>& src, const std::vector<Vec3f>& src_norma
     const Eigen::Matrix3f Ri = Tinv.linear().cast<float>();
     const Vec3f ti = Tinv.translation().cast<float>();
     const float thr2 = static_cast<float>(thr * thr);
-    pairs.clear();
-    double sum2 = 0;
-    for (std::uint32_t i = 0; i < src.size(); ++i) {
+    const float cosn = static_cast<float>(o.cos_normal);
+#pragma omp parallel for schedule(static)
+    for (long i = 0; i < n; ++i) {
+      match[i] = -1;
       const Vec3f p = R * src[i] + t;
       std::uint32_t j;
       float d2;
-      if (!tgt.dense_tree->nearest(p, j, d2) || d2 > thr2) continue;
-      if (use_normals &&
-          std::abs((R * src_normals[i]).dot(tgt.dense.normals[j])) < static_cast<float>(o.cos_normal))
-        continue;
+      if (!tgt.tree->nearest(p, j, d2) || d2 > thr2) continue;
+      if (use_normals && std::abs((R * src_normals[i]).dot((*tgt.normals)[j])) < cosn) continue;
       if (o.reciprocal) {
         std::uint32_t back;
         float bd2;
-        src_tree.nearest(Ri * tgt.dense.points[j] + ti, back, bd2);
-        if (back != i) continue;
+        src_tree.nearest(Ri * (*tgt.points)[j] + ti, back, bd2);
+        if (back != static_cast<std::uint32_t>(i)) continue;
       }
-      pairs.emplace_back(i, j);
-      sum2 += d2;
+      match[i] = j;
+      dist2[i] = d2;
     }
+    pairs.clear();
+    double sum2 = 0;
+    for (long i = 0; i < n; ++i)
+      if (match[i] >= 0) {
+        pairs.emplace_back(static_cast<std::uint32_t>(i), static_cast<std::uint32_t>(match[i]));
+        sum2 += dist2[i];
+      }
     r.pairs = pairs.size();
     r.iterations = it + 1;
     if (pairs.size() < 6) break;
@@ -203,12 +287,12 @@ IcpResult icp(const std::vector<Vec3f>& src, const std::vector<Vec3f>& src_norma
       Eigen::Matrix<double, 6, 1> Atb = Eigen::Matrix<double, 6, 1>::Zero();
       for (const auto& [i, j] : pairs) {
         const Vec3 p = r.T * src[i].cast<double>();
-        const Vec3 q = tgt.dense.points[j].cast<double>();
-        const Vec3 n = tgt.dense.normals[j].cast<double>();
+        const Vec3 q = (*tgt.points)[j].cast<double>();
+        const Vec3 nq = (*tgt.normals)[j].cast<double>();
         Eigen::Matrix<double, 6, 1> a;
-        a << p.cross(n), n;
+        a << p.cross(nq), nq;
         AtA += a * a.transpose();
-        Atb += a * (q - p).dot(n);
+        Atb += a * (q - p).dot(nq);
       }
       const Eigen::Matrix<double, 6, 1> x = AtA.ldlt().solve(Atb);
       if (!x.allFinite()) break;
@@ -218,31 +302,36 @@ IcpResult icp(const std::vector<Vec3f>& src, const std::vector<Vec3f>& src_norma
       Eigen::Matrix<double, 3, Eigen::Dynamic> A(3, pairs.size()), B(3, pairs.size());
       for (std::size_t k = 0; k < pairs.size(); ++k) {
         A.col(static_cast<long>(k)) = r.T * src[pairs[k].first].cast<double>();
-        B.col(static_cast<long>(k)) = tgt.dense.points[pairs[k].second].cast<double>();
+        B.col(static_cast<long>(k)) = (*tgt.points)[pairs[k].second].cast<double>();
       }
       dT.matrix() = Eigen::umeyama(A, B, false);
     }
     r.T = dT * r.T;
-    const double step = Eigen::AngleAxisd(dT.linear()).angle() * tgt.diag + dT.translation().norm();
+    const double step = Eigen::AngleAxisd(dT.linear()).angle() * diag + dT.translation().norm();
     // Coarse to fine: the correspondence distance follows the residual down to its floor.
     thr = std::max(o.min_dist, std::min(thr, 4.0 * r.rmse));
-    if (std::abs(prev - r.rmse) <= o.converge * std::max(prev, 1e-12) && step < 1e-9 * tgt.diag) break;
+    // Converged when the pose stops moving or the error stops changing.
+    if (step < 1e-7 * diag ||
+        (std::isfinite(prev) && std::abs(prev - r.rmse) <= o.converge * std::max(prev, 1e-12)))
+      break;
     prev = r.rmse;
   }
   return r;
 }
 
 // Share of points within `delta` of the target after T (largest common point set).
-double lcp_score(const std::vector<Vec3f>& pts, const ModelTarget::Impl& tgt, const Pose& T, double delta) {
+double lcp_score(const std::vector<Vec3f>& pts, const TargetLevel& tgt, const Pose& T, double delta) {
   if (pts.empty()) return 0;
   const Eigen::Matrix3f R = T.linear().cast<float>();
   const Vec3f t = T.translation().cast<float>();
   const float d2max = static_cast<float>(delta * delta);
-  std::size_t in = 0;
-  for (const auto& p : pts) {
+  long in = 0;
+  const auto n = static_cast<long>(pts.size());
+#pragma omp parallel for reduction(+ : in) schedule(static)
+  for (long i = 0; i < n; ++i) {
     std::uint32_t j;
     float d2;
-    if (tgt.dense_tree->nearest(R * p + t, j, d2) && d2 <= d2max) ++in;
+    if (tgt.tree->nearest(R * pts[i] + t, j, d2) && d2 <= d2max) ++in;
   }
   return static_cast<double>(in) / static_cast<double>(pts.size());
 }
@@ -429,6 +518,7 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
     res.message = "source: fewer than 10 points left after preprocessing";
     return finish();
   }
+  const auto t_fine = std::chrono::steady_clock::now();
   PointCloud coarse = voxel_downsample(fine, diag * p.coarse_voxel);
   if (coarse.size() > static_cast<std::size_t>(p.sor_k) + 1)
     coarse = remove_statistical_outliers(coarse, p.sor_k, p.sor_std);
@@ -436,34 +526,30 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
     res.message = "source: fewer than 10 points at the coarse level";
     return finish();
   }
+  const auto t_coarse = std::chrono::steady_clock::now();
   estimate_normals(coarse, p.normal_k, p.viewpoint);
-  const KdTree coarse_tree(coarse.points);
-
-  // Fine ICP subset (at most 4000 points) with normals from the whole fine cloud.
-  PointCloud sub;
+  const auto t_cn = std::chrono::steady_clock::now();
+  // The global stage works on at most ~600 evenly spread coarse points.
+  PointCloud global;
   {
-    const std::size_t stride = std::max<std::size_t>(1, fine.size() / 4000);
-    for (std::size_t i = 0; i < fine.size(); i += stride) sub.points.push_back(fine.points[i]);
-    PointCloud with_n = fine;
-    // Normals on the subset only: neighbours come from the whole fine cloud.
-    const KdTree fine_tree(fine.points);
-    sub.normals.resize(sub.size());
-    std::vector<std::uint32_t> idx(p.normal_k);
-    std::vector<float> d2(p.normal_k);
-    for (std::size_t i = 0; i < sub.size(); ++i) {
-      const std::size_t m = fine_tree.knn(sub.points[i], p.normal_k, idx.data(), d2.data());
-      Vec3 c = Vec3::Zero();
-      for (std::size_t j = 0; j < m; ++j) c += fine.points[idx[j]].cast<double>();
-      c /= static_cast<double>(std::max<std::size_t>(m, 1));
-      Mat3 C = Mat3::Zero();
-      for (std::size_t j = 0; j < m; ++j) {
-        const Vec3 d = fine.points[idx[j]].cast<double>() - c;
-        C += d * d.transpose();
-      }
-      sub.normals[i] = Eigen::SelfAdjointEigenSolver<Mat3>(C).eigenvectors().col(0).cast<float>();
+    const std::size_t stride = std::max<std::size_t>(1, coarse.size() / 600);
+    for (std::size_t i = 0; i < coarse.size(); i += stride) {
+      global.points.push_back(coarse.points[i]);
+      global.normals.push_back(coarse.normals[i]);
     }
   }
+  const KdTree global_tree(global.points);
+
+  // Fine ICP subset (at most 2000 points, evenly spread) with normals from its own
+  // neighbourhoods (enough for the normal-angle test).
+  PointCloud sub;
+  {
+    const std::size_t stride = std::max<std::size_t>(1, fine.size() / 2000);
+    for (std::size_t i = 0; i < fine.size(); i += stride) sub.points.push_back(fine.points[i]);
+    estimate_normals(sub, p.normal_k, p.viewpoint);
+  }
   const KdTree sub_tree(sub.points);
+  const auto t_pre = std::chrono::steady_clock::now();
 
   IcpOptions coarse_icp;
   coarse_icp.point_to_plane = false;
@@ -471,20 +557,21 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   coarse_icp.cos_normal = std::cos(p.normal_angle);
   coarse_icp.max_dist = diag / 8;
   coarse_icp.min_dist = diag * p.coarse_voxel;
-  coarse_icp.iterations = 20;
-  coarse_icp.converge = 1e-4;
-  const double score_delta = diag * p.coarse_voxel * 0.5;
+  coarse_icp.iterations = 15;
+  coarse_icp.converge = 1e-3;
+  const double score_delta = diag * p.coarse_voxel * 0.75;
 
   Rng rng(12345);
   std::vector<Hypothesis> hyps;
+  const TargetLevel coarse_t = coarse_level(tgt), dense_t = dense_level(tgt);
   auto refine_and_score = [&](const Pose& T, const std::string& stage) {
-    const IcpResult r = icp(coarse.points, coarse.normals, coarse_tree, tgt, T, coarse_icp);
-    hyps.push_back({r.T, lcp_score(coarse.points, tgt, r.T, score_delta), stage});
+    const IcpResult r = icp(global.points, global.normals, global_tree, coarse_t, diag, T, coarse_icp);
+    hyps.push_back({r.T, lcp_score(global.points, coarse_t, r.T, score_delta), stage});
   };
   if (p.use_pca) {
     Vec3 cs;
     Mat3 As;
-    principal_axes(coarse.points, cs, As);
+    principal_axes(global.points, cs, As);
     for (int k = 0; k < 8; ++k) {
       const Vec3 s(k & 1 ? -1 : 1, k & 2 ? -1 : 1, k & 4 ? -1 : 1);
       const Mat3 R = tgt.axes * s.asDiagonal() * As.transpose();
@@ -500,7 +587,7 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
                              return a.score < b.score;
                            })->score;
   if (p.use_4pcs && pca_best < p.pca_accept_fitness) {
-    for (const auto& h : four_pcs(coarse.points, tgt, p, rng)) refine_and_score(h.T, "4pcs");
+    for (const auto& h : four_pcs(global.points, tgt, p, rng)) refine_and_score(h.T, "4pcs");
   }
   if (hyps.empty()) {
     res.message = "no global alignment hypothesis (PCA and 4PCS disabled or failed)";
@@ -517,7 +604,56 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   fine_icp.min_dist = diag * p.fine_voxel;
   fine_icp.iterations = p.icp_iterations;
   fine_icp.converge = p.icp_converge;
-  const IcpResult best = icp(sub.points, sub.normals, sub_tree, tgt, hyps[0].T, fine_icp);
+  const auto t_global = std::chrono::steady_clock::now();
+  IcpResult best = icp(sub.points, sub.normals, sub_tree, dense_t, diag, hyps[0].T, fine_icp);
+  // Polish: every fine point, point-to-plane against the O(1) band lookup, a few iterations
+  // (the noise-limited accuracy grows with the number of points).
+  if (p.point_to_plane) {
+    for (int it = 0; it < p.polish_iterations; ++it) {
+      const Eigen::Matrix3f R = best.T.linear().cast<float>();
+      const Vec3f t = best.T.translation().cast<float>();
+      const double thr = std::max(3.0 * best.rmse, 0.5 * diag * p.fine_voxel);
+      const auto n = static_cast<long>(fine.size());
+      Eigen::Matrix<double, 6, 6> AtA = Eigen::Matrix<double, 6, 6>::Zero();
+      Eigen::Matrix<double, 6, 1> Atb = Eigen::Matrix<double, 6, 1>::Zero();
+#pragma omp parallel
+      {
+        Eigen::Matrix<double, 6, 6> A_loc = Eigen::Matrix<double, 6, 6>::Zero();
+        Eigen::Matrix<double, 6, 1> b_loc = Eigen::Matrix<double, 6, 1>::Zero();
+#pragma omp for schedule(static) nowait
+        for (long i = 0; i < n; ++i) {
+          const Vec3f pf = R * fine.points[i] + t;
+          std::uint32_t j;
+          if (!tgt.nearest_in_band(pf, j)) continue;
+          const Vec3 pp = pf.cast<double>();
+          const Vec3 nq = tgt.dense.normals[j].cast<double>();
+          const double e = (tgt.dense.points[j].cast<double>() - pp).dot(nq);
+          if (std::abs(e) > thr) continue;
+          Eigen::Matrix<double, 6, 1> a;
+          a << pp.cross(nq), nq;
+          A_loc += a * a.transpose();
+          b_loc += a * e;
+        }
+        // Fixed-order reduction keeps the result independent of scheduling.
+#pragma omp for ordered schedule(static, 1)
+        for (int k = 0; k < omp_get_num_threads(); ++k) {
+#pragma omp ordered
+          {
+            AtA += A_loc;
+            Atb += b_loc;
+          }
+        }
+      }
+      const Eigen::Matrix<double, 6, 1> x = AtA.ldlt().solve(Atb);
+      if (!x.allFinite()) break;
+      Pose dT = Pose::Identity();
+      dT.linear() = skew_exp(x.head<3>());
+      dT.translation() = x.tail<3>();
+      best.T = dT * best.T;
+      if (x.norm() * diag < 1e-8 * diag) break;
+    }
+  }
+  const auto t_icp = std::chrono::steady_clock::now();
 
   // Verdict: inliers of the fine subset, their RMSE, and the best distinct alternative.
   const double inlier = diag * p.fine_voxel;
@@ -540,17 +676,34 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   // Ambiguity: unexplained share of the best over that of the best distinct alternative,
   // both refined at the fine level (symmetric parts give ~1).
   res.ambiguity = 0;
-  for (std::size_t k = 1; k < hyps.size(); ++k) {
-    if (!distinct(hyps[k].T, best.T, diag)) continue;
+  {
+    // Half of the ICP subset suffices to compare poses.
+    PointCloud few;
+    for (std::size_t i = 0; i < sub.size(); i += 2) {
+      few.points.push_back(sub.points[i]);
+      few.normals.push_back(sub.normals[i]);
+    }
+    const KdTree few_tree(few.points);
     IcpOptions quick = fine_icp;
-    quick.iterations = 10;
-    const IcpResult alt = icp(sub.points, sub.normals, sub_tree, tgt, hyps[k].T, quick);
-    if (!distinct(alt.T, best.T, diag)) continue;
-    const double s_best = lcp_score(sub.points, tgt, best.T, inlier);
-    const double s_alt = lcp_score(sub.points, tgt, alt.T, inlier);
-    res.ambiguity = std::min(1.0, (1 - s_best + 1e-3) / (1 - s_alt + 1e-3));
-    break;
+    quick.iterations = 6;
+    int tried = 0;
+    for (std::size_t k = 1; k < hyps.size(); ++k) {
+      if (!distinct(hyps[k].T, best.T, diag) || tried++ >= 2) continue;
+      const IcpResult alt = icp(few.points, few.normals, few_tree, dense_t, diag, hyps[k].T, quick);
+      if (!distinct(alt.T, best.T, diag)) continue;
+      const double s_best = lcp_score(few.points, dense_t, best.T, inlier);
+      const double s_alt = lcp_score(few.points, dense_t, alt.T, inlier);
+      res.ambiguity = std::min(1.0, (1 - s_best + 1e-3) / (1 - s_alt + 1e-3));
+      break;
+    }
   }
+  const auto ms = [](auto a, auto b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
+  spdlog::debug("register: preprocess = fine voxel {:.1f} + coarse/SOR {:.1f} + normals {:.1f} + subset {:.1f} ms",
+                ms(t0, t_fine), ms(t_fine, t_coarse), ms(t_coarse, t_cn), ms(t_cn, t_pre));
+  spdlog::debug("register: {} fine / {} coarse / {} ICP points; preprocess {:.1f} ms, global ({} "
+                "hypotheses) {:.1f} ms, fine ICP {:.1f} ms ({} iterations), verdict {:.1f} ms",
+                fine.size(), coarse.size(), sub.size(), ms(t0, t_pre), hyps.size(), ms(t_pre, t_global),
+                ms(t_global, t_icp), best.iterations, ms(t_icp, std::chrono::steady_clock::now()));
   res.T_target_source = best.T;
   res.stage = hyps[0].stage;
   res.ran = true;

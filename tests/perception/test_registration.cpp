@@ -1,6 +1,9 @@
 #include <gtest/gtest.h>
 
+#include <spdlog/spdlog.h>
+
 #include <cmath>
+#include <cstdlib>
 
 #include "flashtwin/core/random.hpp"
 #include "flashtwin/perception/preprocess.hpp"
@@ -42,10 +45,12 @@ PointCloud moved_copy(const std::vector<Vec3>& pts, const Pose& X_true, double s
 }  // namespace
 
 TEST(Registration, RandomPosesOnTheBunnyAllSucceed) {
+  if (std::getenv("FT_DEBUG")) spdlog::set_level(spdlog::level::debug);
   const auto target = ModelTarget::from_mesh(bunny());
   const double diag = target->diagonal();
   Rng rng(42);
   double worst_rot = 0, worst_t = 0, total_time = 0;
+  std::vector<double> rots, times;
   for (int trial = 0; trial < 20; ++trial) {
     const Pose X = random_pose(rng, diag);
     const PointCloud src = moved_copy(bunny().vertices, X, 0.001 * diag, rng, 1);
@@ -56,10 +61,15 @@ TEST(Registration, RandomPosesOnTheBunnyAllSucceed) {
     worst_rot = std::max(worst_rot, rot);
     worst_t = std::max(worst_t, tr);
     total_time += r.time_s;
+    rots.push_back(rot);
+    times.push_back(r.time_s);
     EXPECT_LT(rot, 1.0) << "trial " << trial << " stage " << r.stage;
     EXPECT_LT(tr, 0.005 * diag) << "trial " << trial;
     EXPECT_TRUE(r.confident) << r.message;
   }
-  std::printf("bunny 0.1%% noise: worst rotation %.4f deg, worst translation %.4f mm, mean time %.1f ms\n",
-              worst_rot, worst_t * 1000, total_time / 20 * 1000);
+  std::sort(rots.begin(), rots.end());
+  std::sort(times.begin(), times.end());
+  std::printf("bunny 0.1%% noise: median rotation %.5f deg, worst %.4f deg, worst translation %.4f mm, "
+              "median time %.1f ms\n",
+              rots[10], worst_rot, worst_t * 1000, times[10] * 1000);
 }

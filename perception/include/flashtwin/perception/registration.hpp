@@ -78,8 +78,9 @@ struct RegistrationParams {
   bool point_to_plane = true;         ///< final ICP point-to-plane (else point-to-point)
   bool reciprocal = true;             ///< keep only mutual nearest neighbours
   double normal_angle = 0.6;          ///< [rad] τ: reject pairs whose normals differ more
-  int icp_iterations = 40;            ///< per level
-  double icp_converge = 1e-7;         ///< stop when the relative error change is below this
+  int icp_iterations = 25;            ///< reciprocal, normal-constrained ICP iterations
+  int polish_iterations = 3;          ///< final point-to-plane passes over every fine point
+  double icp_converge = 1e-3;         ///< stop when the relative error change is below this
   // Verdict.
   double min_fitness = 0.6;           ///< inlier share needed to be confident
   double max_rmse = 1.0 / 300;        ///< inlier RMSE allowed (fraction of the diagonal)
