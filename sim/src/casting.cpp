@@ -67,6 +67,18 @@ Loop circle(const Vec2& c, double r, double err) {
   return l;
 }
 
+// Circle of radius r about the origin cut by the chord x = xf (counter-clockwise).
+Loop flatted_circle(double r, double xf, double err) {
+  const double a0 = std::acos(xf / r);
+  const int n = std::max(12, arc_segments(r, 2 * M_PI - 2 * a0, err));
+  Loop l;
+  for (int i = 0; i <= n; ++i) {
+    const double a = a0 + (2 * M_PI - 2 * a0) * i / n;
+    l.emplace_back(r * std::cos(a), r * std::sin(a));
+  }
+  return l;  // the last point (xf, −…) joins the first (xf, +…) along the flat
+}
+
 Loop rounded_rect(const Vec2& c, double lx, double ly, double rc, double err) {
   Loop l;
   const int n = arc_segments(rc, M_PI / 2, err);
@@ -166,7 +178,9 @@ Family flanged_plate(Rng& rng, double err) {
   const double rh = rng.uniform(0.0045, 0.008);
   const double inset = std::max(rc, 2.4 * rh);
   const double hr = rng.uniform(0.012, 0.035), wr = rng.uniform(0.006, 0.012);
-  const double yr = 0.17 * W;
+  // Ribs off-centre and a fifth hole on one side: real castings carry datum features, and a
+  // part without symmetry has one registration answer.
+  const double yr1 = 0.2 * W, yr2 = -0.06 * W;
   const double Lr = L - 2 * inset - 2 * rh - 0.01;
 
   const Loop outline = rounded_rect({0, 0}, L, W, rc, err);
@@ -174,7 +188,8 @@ Family flanged_plate(Rng& rng, double err) {
   for (int sx = -1; sx <= 1; sx += 2)
     for (int sy = -1; sy <= 1; sy += 2)
       holes.push_back(circle({sx * (L / 2 - inset), sy * (W / 2 - inset)}, rh, err));
-  std::vector<Loop> ribs = {rect({0, yr}, Lr, wr), rect({0, -yr}, Lr, wr)};
+  holes.push_back(circle({L / 2 - inset, 0}, rh, err));
+  std::vector<Loop> ribs = {rect({0, yr1}, Lr, wr), rect({0, yr2}, Lr, wr)};
 
   Builder b;
   b.cap(outline, holes, 0, false);
@@ -189,9 +204,9 @@ Family flanged_plate(Rng& rng, double err) {
   }
   Family f;
   f.mesh = b.finish();
-  f.analytic_volume = (rounded_rect_area(L, W, rc) - 4 * M_PI * rh * rh) * T + 2 * Lr * wr * hr;
+  f.analytic_volume = (rounded_rect_area(L, W, rc) - 5 * M_PI * rh * rh) * T + 2 * Lr * wr * hr;
   f.parting_height = T / 2;
-  f.description = "flanged plate " + mm(L) + " x " + mm(W) + " x " + mm(T) + " mm, 4 bolt holes d" +
+  f.description = "flanged plate " + mm(L) + " x " + mm(W) + " x " + mm(T) + " mm, 5 bolt holes d" +
                   mm(2 * rh) + ", 2 ribs " + mm(wr) + " x " + mm(hr) + " mm";
   return f;
 }
@@ -209,7 +224,9 @@ Family round_flange(Rng& rng, double err) {
   const double rb = std::min(rng.uniform(0.005, 0.011), rb_max);
   FT_ASSERT(rb > 0.002);
 
-  const Loop disc = circle({0, 0}, R, err), hub = circle({0, 0}, Rh, err),
+  // A flat on the rim (a datum, as on real flanges) breaks the rotational symmetry.
+  const double xf = 0.92 * R;
+  const Loop disc = flatted_circle(R, xf, err), hub = circle({0, 0}, Rh, err),
              bore = circle({0, 0}, Rb, err);
   std::vector<Loop> bolts;
   for (int i = 0; i < nb; ++i) {
@@ -230,10 +247,11 @@ Family round_flange(Rng& rng, double err) {
   b.cap(hub, {bore}, T + Hh, true);
   Family f;
   f.mesh = b.finish();
+  const double segment = R * R * std::acos(xf / R) - xf * std::sqrt(R * R - xf * xf);
   f.analytic_volume =
-      M_PI * (R * R - Rb * Rb - nb * rb * rb) * T + M_PI * (Rh * Rh - Rb * Rb) * Hh;
+      (M_PI * (R * R - Rb * Rb - nb * rb * rb) - segment) * T + M_PI * (Rh * Rh - Rb * Rb) * Hh;
   f.parting_height = T / 2;
-  f.description = "round flange d" + mm(2 * R) + " x " + mm(T) + " mm, hub d" + mm(2 * Rh) + " x " +
+  f.description = "round flange d" + mm(2 * R) + " x " + mm(T) + " mm with a flat, hub d" + mm(2 * Rh) + " x " +
                   mm(Hh) + " mm, bore d" + mm(2 * Rb) + ", " + std::to_string(nb) +
                   " bolt holes d" + mm(2 * rb);
   return f;
@@ -249,11 +267,15 @@ Family housing(Rng& rng, double err) {
   const double tw = rng.uniform(0.006, 0.012);
   const double Hw = rng.uniform(0.03, 0.08);
   const double rc2 = tw + rng.uniform(0.004, 0.012);
-  const double Lo = L - 2 * m, Wo = W - 2 * m;
+  // The walls sit off-centre on the flange (a wider mounting margin on one side), so the part
+  // has no rotational symmetry.
+  const double extra = rng.uniform(0.02, 0.045);
+  const double Lo = L - 2 * m - extra, Wo = W - 2 * m;
+  const Vec2 wc(extra / 2, 0);
 
   const Loop outline = rounded_rect({0, 0}, L, W, rc, err);
-  const Loop outer = rounded_rect({0, 0}, Lo, Wo, rc2, err);
-  const Loop inner = rounded_rect({0, 0}, Lo - 2 * tw, Wo - 2 * tw, rc2 - tw, err);
+  const Loop outer = rounded_rect(wc, Lo, Wo, rc2, err);
+  const Loop inner = rounded_rect(wc, Lo - 2 * tw, Wo - 2 * tw, rc2 - tw, err);
   std::vector<Loop> holes;
   for (int sx = -1; sx <= 1; sx += 2)
     for (int sy = -1; sy <= 1; sy += 2)
