@@ -3,17 +3,21 @@
 // this file; the result type is the project's own.
 //
 // All lengths scale with the target's bounding-box diagonal d, so the same settings serve a
-// 0.16 m bunny and a 0.3 m casting:
-//   feature voxel      d/100  (VoxelGrid before normals, FPFH, ISS, 3DSC, SAC-IA)
-//   FPCS voxel         d/50   (PCL's 4PCS pairs every two source samples: keep the clouds small)
-//   ICP source voxel   d/200  (the ICP target is the full target cloud)
+// 0.25 m bunny and a 0.3 m casting. Both clouds are thinned with pcl::VoxelGrid first:
+//   coarse voxel  d/50   SAC-IA (normals, FPFH, samples, error), FPCS, the NDT source. SAC-IA
+//                        scores every hypothesis on the whole cloud: at d/100 the Bunny keeps
+//                        11.6k points and 1000 iterations take ~20 s; at d/50 it keeps ~3.2k
+//                        (PCL's template-alignment tutorial uses about d/40).
+//   feature voxel d/100  ISS keypoints and 3DSC descriptors (and their normals)
+//   ICP voxel     d/200  ICP source; the ICP target is the whole target cloud
 //   normals            radius 2.5 voxels, oriented away from the cloud's centroid
 //   FPFH               radius 5 voxels
 //   ISS                salient radius 6 voxels, non-maximum radius 4 voxels (PCL's example)
 //   3DSC               support radius d/8, minimal radius 1/10 and density radius 1/5 of it
 //   NDT                run on coordinates divided by d: cell size 1/12, line-search step 0.05
-//   ICP                two rounds, correspondence distance d/20 then d/100
+//   ICP                point-to-point, two rounds: correspondence distance d/20, then d/100
 //   verdict            inlier distance d/100, confident when fitness >= 0.6, RMSE <= d/300
+// Threads: normals, FPFH, ISS and FPCS use all hardware threads (OpenMP), as ours does.
 #include "flashtwin/perception/baselines.hpp"
 
 #include <pcl/common/transforms.h>
@@ -43,6 +47,8 @@
 
 #include "flashtwin/core/errors.hpp"
 #include "flashtwin/perception/preprocess.hpp"
+
+#include <spdlog/spdlog.h>
 
 namespace flashtwin::perception {
 
@@ -74,8 +80,8 @@ using Tree = pcl::search::KdTree<PointT>;
 using Mat4f = Eigen::Matrix4f;
 
 // Settings, as fractions of the target diagonal (see the file comment).
+constexpr double kCoarseVoxel = 1.0 / 50;
 constexpr double kFeatureVoxel = 1.0 / 100;
-constexpr double kFpcsVoxel = 1.0 / 50;
 constexpr double kIcpVoxel = 1.0 / 200;
 constexpr double kNormalRadiusVoxels = 2.5;
 constexpr double kFpfhRadiusVoxels = 5.0;
@@ -87,6 +93,11 @@ constexpr double kIcpFine = 1.0 / 100;
 constexpr double kInlierDistance = 1.0 / 100;
 constexpr double kMinFitness = 0.6;
 constexpr double kMaxRmse = 1.0 / 300;
+
+using Clock = std::chrono::steady_clock;
+double seconds_since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
 
 int thread_count() { return static_cast<int>(std::max(1u, std::thread::hardware_concurrency())); }
 
@@ -166,8 +177,11 @@ Mat4f refine_icp(const Cloud::ConstPtr& source_fine, const Cloud::ConstPtr& targ
     icp.setSearchMethodTarget(target_tree, true);
     icp.setMaxCorrespondenceDistance(dist * diag);
     icp.setMaximumIterations(30);
-    icp.setTransformationEpsilon(1e-12);
-    icp.setEuclideanFitnessEpsilon(1e-14 * diag * diag);
+    // Stop when a step moves less than 1e-6 d and turns less than float resolution, or the
+    // mean squared error changes by less than 1e-6 relative.
+    icp.setTransformationEpsilon(std::pow(1e-6 * diag, 2));
+    icp.setTransformationRotationEpsilon(1.0 - 1e-9);
+    icp.setEuclideanFitnessEpsilon(1e-6);
     Cloud aligned;
     icp.align(aligned, T);
     converged = converged && icp.hasConverged();
@@ -268,7 +282,8 @@ struct Outcome {
 Outcome run_sacia_ndt(const Inputs& in) {
   Outcome o;
   o.stage = "sacia+ndt";
-  const double voxel = kFeatureVoxel * in.diag;
+  const auto t0 = Clock::now();
+  const double voxel = kCoarseVoxel * in.diag;
   Cloud::Ptr src = voxel_grid(in.source, voxel), tgt = voxel_grid(in.target, voxel);
   Normals::Ptr sn, tn;
   normals_outward(src, sn, kNormalRadiusVoxels * voxel);
@@ -290,27 +305,31 @@ Outcome run_sacia_ndt(const Inputs& in) {
     return f;
   };
   const Fpfh::Ptr sf = fpfh(src, sn), tf = fpfh(tgt, tn);
+  const double t_features = seconds_since(t0);
   // SAC-IA as in PCL's template-alignment tutorial: 3 samples at least d/10 apart, one of the
-  // 5 most similar target features at random, truncated error at d/100 (PCL compares squared
-  // distances with this "distance"), 1000 iterations.
+  // 5 most similar target features at random, error truncated at 2 voxels (PCL compares
+  // squared distances with this "distance", hence the square), 1000 iterations.
   pcl::SampleConsensusInitialAlignment<PointT, PointT, pcl::FPFHSignature33> sac;
   sac.setInputSource(src);
   sac.setSourceFeatures(sf);
   sac.setInputTarget(tgt);
   sac.setTargetFeatures(tf);
   sac.setMinSampleDistance(static_cast<float>(in.diag / 10));
-  sac.setMaxCorrespondenceDistance(std::pow(kInlierDistance * in.diag, 2));
+  sac.setMaxCorrespondenceDistance(std::pow(2 * voxel, 2));
   sac.setMaximumIterations(1000);
   sac.setNumberOfSamples(3);
   sac.setCorrespondenceRandomness(5);
   Cloud aligned;
   sac.align(aligned);
+  const double t_sac = seconds_since(t0);
   if (!sac.hasConverged()) {
     o.failure = "SAC-IA found no transformation";
     return o;
   }
   bool ndt_ok = false;
   o.T = refine_ndt(*src, *in.target, sac.getFinalTransformation(), in.diag, ndt_ok);
+  spdlog::debug("sacia-ndt: {} / {} feature points; normals+FPFH {:.3f} s, SAC-IA {:.3f} s, NDT {:.3f} s",
+                src->size(), tgt->size(), t_features, t_sac - t_features, seconds_since(t0) - t_sac);
   o.converged = ndt_ok;
   if (!ndt_ok) o.failure = "NDT did not converge";
   return o;
@@ -319,12 +338,16 @@ Outcome run_sacia_ndt(const Inputs& in) {
 Outcome run_ndt_icp(const Inputs& in) {
   Outcome o;
   o.stage = "ndt+icp";
-  const Cloud::Ptr src = voxel_grid(in.source, kFeatureVoxel * in.diag);
+  const auto t0 = Clock::now();
+  const Cloud::Ptr src = voxel_grid(in.source, kCoarseVoxel * in.diag);
   bool ndt_ok = false;
   const Mat4f T0 = refine_ndt(*src, *in.target, Mat4f::Identity(), in.diag, ndt_ok);
+  const double t_ndt = seconds_since(t0);
   bool icp_ok = false;
   o.T = refine_icp(voxel_grid(in.source, kIcpVoxel * in.diag), in.target, in.target_tree, T0,
                    in.diag, icp_ok);
+  spdlog::debug("ndt-icp: {} NDT source points; NDT {:.3f} s, ICP {:.3f} s", src->size(), t_ndt,
+                seconds_since(t0) - t_ndt);
   o.converged = ndt_ok && icp_ok;
   if (!ndt_ok) o.failure = "NDT did not converge";
   else if (!icp_ok) o.failure = "ICP did not converge";
@@ -334,6 +357,7 @@ Outcome run_ndt_icp(const Inputs& in) {
 Outcome run_iss_3dsc_icp(const Inputs& in) {
   Outcome o;
   o.stage = "iss+3dsc+icp";
+  const auto t0 = Clock::now();
   const double voxel = kFeatureVoxel * in.diag;
   Cloud::Ptr src = voxel_grid(in.source, voxel), tgt = voxel_grid(in.target, voxel);
   Normals::Ptr sn, tn;
@@ -354,6 +378,7 @@ Outcome run_iss_3dsc_icp(const Inputs& in) {
     return k;
   };
   const Cloud::Ptr sk = keypoints(src), tk = keypoints(tgt);
+  const double t_iss = seconds_since(t0);
   if (sk->size() < 3 || tk->size() < 3) {
     o.failure = "ISS found fewer than 3 keypoints (source " + std::to_string(sk->size()) +
                 ", target " + std::to_string(tk->size()) + ")";
@@ -375,6 +400,7 @@ Outcome run_iss_3dsc_icp(const Inputs& in) {
     return d;
   };
   const Desc::Ptr sd = describe(sk, src, sn), td = describe(tk, tgt, tn);
+  const double t_3dsc = seconds_since(t0);
   const pcl::Correspondences matches = match_shape_contexts(*sd, *td);
   // Correspondence RANSAC: inliers within 2 feature voxels, then the best rigid transform.
   pcl::registration::CorrespondenceRejectorSampleConsensus<PointT> rej;
@@ -385,6 +411,7 @@ Outcome run_iss_3dsc_icp(const Inputs& in) {
   rej.setRefineModel(false);
   pcl::Correspondences inliers;
   rej.getRemainingCorrespondences(matches, inliers);
+  const double t_match = seconds_since(t0);
   if (inliers.size() < 3) {
     o.failure = "correspondence RANSAC kept " + std::to_string(inliers.size()) + " of " +
                 std::to_string(matches.size()) + " 3DSC matches";
@@ -393,6 +420,10 @@ Outcome run_iss_3dsc_icp(const Inputs& in) {
   bool icp_ok = false;
   o.T = refine_icp(voxel_grid(in.source, kIcpVoxel * in.diag), in.target, in.target_tree,
                    rej.getBestTransformation(), in.diag, icp_ok);
+  spdlog::debug("iss-3dsc-icp: {} / {} keypoints, {} of {} matches kept; normals+ISS {:.3f} s, 3DSC {:.3f} s, "
+                "matching+RANSAC {:.3f} s, ICP {:.3f} s",
+                sk->size(), tk->size(), inliers.size(), matches.size(), t_iss, t_3dsc - t_iss,
+                t_match - t_3dsc, seconds_since(t0) - t_match);
   o.converged = icp_ok;
   if (!icp_ok) o.failure = "ICP did not converge";
   return o;
@@ -401,10 +432,13 @@ Outcome run_iss_3dsc_icp(const Inputs& in) {
 Outcome run_fpcs_icp(const Inputs& in) {
   Outcome o;
   o.stage = "fpcs+icp";
-  const double voxel = kFpcsVoxel * in.diag;
+  const auto t0 = Clock::now();
+  const double voxel = kCoarseVoxel * in.diag;
   const Cloud::Ptr src = voxel_grid(in.source, voxel), tgt = voxel_grid(in.target, voxel);
-  // Overlap estimate for FPCS (base width, iteration count, early stop): the share of occupied
-  // target voxels that the source occupies, a rotation-independent surface-area ratio.
+  // Overlap estimate for FPCS (base width and iteration count): the share of occupied target
+  // voxels that the source occupies, a rotation-independent surface-area ratio. The early stop
+  // is set apart from it: PCL scores the share of source samples near the target, which is
+  // close to 1 at the right pose whatever the overlap, so stop only above 80 %.
   const double overlap =
       std::clamp(static_cast<double>(src->size()) / static_cast<double>(tgt->size()), 0.3, 0.9);
   // PCL 1.13's FPCS seeds rand() from the clock inside align(): runs are not repeatable.
@@ -415,13 +449,18 @@ Outcome run_fpcs_icp(const Inputs& in) {
   fpcs.setDelta(1.0f, true);  // tolerance = mean target point spacing
   fpcs.setNumberOfSamples(200);
   fpcs.setNumberOfThreads(thread_count());
-  fpcs.setMaxComputationTime(30);
+  fpcs.setScoreThreshold(0.2f);
+  fpcs.setMaxComputationTime(10);  // [s] PCL's own cap
   Cloud aligned;
   fpcs.align(aligned);
   const bool fpcs_ok = fpcs.hasConverged();
+  const double t_fpcs = seconds_since(t0);
   bool icp_ok = false;
   o.T = refine_icp(voxel_grid(in.source, kIcpVoxel * in.diag), in.target, in.target_tree,
                    fpcs.getFinalTransformation(), in.diag, icp_ok);
+  spdlog::debug("fpcs-icp: {} / {} points, overlap {:.2f}, FPCS score {:.3f}; FPCS {:.3f} s, ICP {:.3f} s",
+                src->size(), tgt->size(), overlap, fpcs.getFitnessScore(), t_fpcs,
+                seconds_since(t0) - t_fpcs);
   o.converged = fpcs_ok && icp_ok;
   if (!fpcs_ok) o.failure = "FPCS did not reach its score threshold";
   else if (!icp_ok) o.failure = "ICP did not converge";

@@ -3,6 +3,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numeric>
 
 #include "flashtwin/core/errors.hpp"
@@ -28,12 +29,12 @@ std::string validate_cloud(const PointCloud& cloud, std::size_t min_points) {
   return "";
 }
 
-PointCloud voxel_downsample(const PointCloud& cloud, double voxel) {
-  FT_ASSERT(voxel > 0);
-  const bool has_n = cloud.normals.size() == cloud.size() && !cloud.empty();
+namespace {
+
+// Points sorted by voxel key (ties by index): runs of equal keys are the voxels.
+std::vector<std::pair<std::uint64_t, std::uint32_t>> sorted_voxel_keys(const PointCloud& cloud,
+                                                                       double voxel) {
   const double inv = 1.0 / voxel;
-  // Sort points by voxel key, then average each run: faster than hashing and deterministic
-  // (output ordered by voxel key).
   std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(cloud.size());
   for (std::size_t i = 0; i < cloud.size(); ++i) {
     const Vec3f& p = cloud.points[i];
@@ -46,6 +47,17 @@ PointCloud voxel_downsample(const PointCloud& cloud, double voxel) {
                 static_cast<std::uint32_t>(i)};
   }
   std::sort(keyed.begin(), keyed.end());
+  return keyed;
+}
+
+}  // namespace
+
+PointCloud voxel_downsample(const PointCloud& cloud, double voxel) {
+  FT_ASSERT(voxel > 0);
+  const bool has_n = cloud.normals.size() == cloud.size() && !cloud.empty();
+  // Sorting by voxel key then averaging each run is faster than hashing and deterministic
+  // (output ordered by voxel key).
+  const auto keyed = sorted_voxel_keys(cloud, voxel);
   PointCloud out;
   for (std::size_t a = 0; a < keyed.size();) {
     std::size_t b = a;
@@ -64,6 +76,34 @@ PointCloud voxel_downsample(const PointCloud& cloud, double voxel) {
       const double len = n.norm();
       out.normals.push_back(len > 0 ? Vec3f((n / len).cast<float>()) : Vec3f::UnitZ());
     }
+    a = b;
+  }
+  return out;
+}
+
+PointCloud voxel_downsample_nearest(const PointCloud& cloud, double voxel) {
+  FT_ASSERT(voxel > 0);
+  const bool has_n = cloud.normals.size() == cloud.size() && !cloud.empty();
+  const auto keyed = sorted_voxel_keys(cloud, voxel);
+  PointCloud out;
+  for (std::size_t a = 0; a < keyed.size();) {
+    std::size_t b = a;
+    Eigen::Vector3d c = Eigen::Vector3d::Zero();
+    for (; b < keyed.size() && keyed[b].first == keyed[a].first; ++b)
+      c += cloud.points[keyed[b].second].cast<double>();
+    c /= static_cast<double>(b - a);
+    // The voxel's points are at hand in the sorted run: a linear scan finds the nearest.
+    std::uint32_t best = keyed[a].second;
+    double best_d2 = std::numeric_limits<double>::infinity();
+    for (std::size_t k = a; k < b; ++k) {
+      const double d2 = (cloud.points[keyed[k].second].cast<double>() - c).squaredNorm();
+      if (d2 < best_d2) {
+        best_d2 = d2;
+        best = keyed[k].second;
+      }
+    }
+    out.points.push_back(cloud.points[best]);
+    if (has_n) out.normals.push_back(cloud.normals[best]);
     a = b;
   }
   return out;
@@ -104,7 +144,7 @@ void estimate_normals(PointCloud& cloud, int k, const Vec3& viewpoint) {
   std::vector<std::uint32_t> idx(kk);
   std::vector<float> d2(kk);
   std::vector<std::vector<std::uint32_t>> graph(viewpoint.allFinite() ? 0 : n);
-#pragma omp parallel for schedule(static) firstprivate(idx, d2)
+#pragma omp parallel for schedule(static) firstprivate(idx, d2) if (n >= 8192)
   for (std::size_t i = 0; i < n; ++i) {
     const std::size_t m = tree.knn(cloud.points[i], kk, idx.data(), d2.data());
     Eigen::Vector3d c = Eigen::Vector3d::Zero();

@@ -200,7 +200,9 @@ namespace {
 struct IcpOptions {
   bool point_to_plane = true;
   bool reciprocal = true;
-  double cos_normal = -1;   // reject pairs with |n_s·n_t| below this (−1: no normal test)
+  double cos_normal = -1;   // reject pairs with n_s·n_t below this (−1: no normal test)
+  bool signed_normals = false;  // source normals reliably outward (known viewpoint): compare
+                                // with sign, so a top face never matches a bottom face
   double max_dist = 0.01;   // [m] initial correspondence distance
   double min_dist = 0.001;  // [m] floor of the shrinking distance
   int iterations = 30;
@@ -252,14 +254,18 @@ IcpResult icp(const std::vector<Vec3f>& src, const std::vector<Vec3f>& src_norma
     const Vec3f ti = Tinv.translation().cast<float>();
     const float thr2 = static_cast<float>(thr * thr);
     const float cosn = static_cast<float>(o.cos_normal);
-#pragma omp parallel for schedule(static)
+    // Threads only pay off for large sets (and spin badly when the other core is busy).
+#pragma omp parallel for schedule(static) if (n >= 8192)
     for (long i = 0; i < n; ++i) {
       match[i] = -1;
       const Vec3f p = R * src[i] + t;
       std::uint32_t j;
       float d2;
       if (!tgt.tree->nearest(p, j, d2) || d2 > thr2) continue;
-      if (use_normals && std::abs((R * src_normals[i]).dot((*tgt.normals)[j])) < cosn) continue;
+      if (use_normals) {
+        const float c = (R * src_normals[i]).dot((*tgt.normals)[j]);
+        if ((o.signed_normals ? c : std::abs(c)) < cosn) continue;
+      }
       if (o.reciprocal) {
         std::uint32_t back;
         float bd2;
@@ -327,7 +333,7 @@ double lcp_score(const std::vector<Vec3f>& pts, const TargetLevel& tgt, const Po
   const float d2max = static_cast<float>(delta * delta);
   long in = 0;
   const auto n = static_cast<long>(pts.size());
-#pragma omp parallel for reduction(+ : in) schedule(static)
+#pragma omp parallel for reduction(+ : in) schedule(static) if (n >= 8192)
   for (long i = 0; i < n; ++i) {
     std::uint32_t j;
     float d2;
@@ -478,7 +484,8 @@ std::vector<Hypothesis> four_pcs(const std::vector<Vec3f>& src, const ModelTarge
           }
         }
       }
-    if (best_score > 0.9) break;  // early exit: a convincing alignment
+    // Early exit: a convincing alignment, or a good one and no progress for a while.
+    if (best_score > 0.85 || (base >= 40 && best_score > 0.6)) break;
   }
   std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.score > b.score; });
   if (out.size() > 12) out.resize(12);
@@ -511,7 +518,9 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   const double diag = tgt.diag;
 
   // Preprocessing: fine voxel grid, optional table removal, coarse voxel grid + outlier removal.
-  PointCloud fine = voxel_downsample(PointCloud{source.points, {}, {}}, diag * p.fine_voxel);
+  // The fine level keeps original points (nearest the voxel centroid): no averaging bias at
+  // the casting's edges and corners.
+  PointCloud fine = voxel_downsample_nearest(PointCloud{source.points, {}, {}}, diag * p.fine_voxel);
   if (p.remove_support_plane)
     fine = remove_support_plane(fine, diag / 150, diag / 60, 0.2, 7);
   if (fine.size() < 10) {
@@ -555,8 +564,10 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   coarse_icp.point_to_plane = false;
   coarse_icp.reciprocal = p.reciprocal;
   coarse_icp.cos_normal = std::cos(p.normal_angle);
+  coarse_icp.signed_normals = p.viewpoint.allFinite();
   coarse_icp.max_dist = diag / 8;
-  coarse_icp.min_dist = diag * p.coarse_voxel;
+  // The floor stays wide enough to see end walls and other features that stop sliding.
+  coarse_icp.min_dist = 2.5 * diag * p.coarse_voxel;
   coarse_icp.iterations = 15;
   coarse_icp.converge = 1e-3;
   const double score_delta = diag * p.coarse_voxel * 0.75;
@@ -564,9 +575,30 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   Rng rng(12345);
   std::vector<Hypothesis> hyps;
   const TargetLevel coarse_t = coarse_level(tgt), dense_t = dense_level(tgt);
+  // Hypotheses are scored by the share of the source's fine points (a fixed subset) whose
+  // point-to-plane residual to the model is within two fine voxels: sharper than the coarse
+  // voxel distance, still cheap through the band lookup.
+  std::vector<Vec3f> probe;
+  {
+    const std::size_t stride = std::max<std::size_t>(1, fine.size() / 1500);
+    for (std::size_t i = 0; i < fine.size(); i += stride) probe.push_back(fine.points[i]);
+  }
+  auto band_score = [&](const Pose& T, double delta) {
+    const Eigen::Matrix3f R = T.linear().cast<float>();
+    const Vec3f t = T.translation().cast<float>();
+    std::size_t in = 0;
+    for (const auto& q0 : probe) {
+      std::uint32_t j;
+      const Vec3f q = R * q0 + t;
+      in += tgt.nearest_in_band(q, j) &&
+            std::abs((tgt.dense.points[j] - q).dot(tgt.dense.normals[j])) <= static_cast<float>(delta);
+    }
+    return static_cast<double>(in) / static_cast<double>(probe.size());
+  };
+  (void)score_delta;
   auto refine_and_score = [&](const Pose& T, const std::string& stage) {
     const IcpResult r = icp(global.points, global.normals, global_tree, coarse_t, diag, T, coarse_icp);
-    hyps.push_back({r.T, lcp_score(global.points, coarse_t, r.T, score_delta), stage});
+    hyps.push_back({r.T, band_score(r.T, 2 * diag * p.fine_voxel), stage});
   };
   if (p.use_pca) {
     Vec3 cs;
@@ -593,56 +625,196 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
     res.message = "no global alignment hypothesis (PCA and 4PCS disabled or failed)";
     return finish();
   }
-  std::sort(hyps.begin(), hyps.end(), [](const auto& a, const auto& b) { return a.score > b.score; });
+  auto by_score = [](const auto& a, const auto& b) { return a.score > b.score; };
+  std::sort(hyps.begin(), hyps.end(), by_score);
+  auto second_distinct = [&](const std::vector<Hypothesis>& h) {
+    for (std::size_t k = 1; k < h.size(); ++k)
+      if (distinct(h[k].T, h[0].T, diag)) return h[k].score;
+    return 0.0;
+  };
+  // Symmetry sweep: unless the coarse ranking is decisive (near-symmetric or partially seen
+  // parts), also try the best pose turned about each principal axis of the model in 30° steps.
+  // Skipped only when the coarse level is already clear: a near-complete fit and no close rival.
+  const bool clear = hyps[0].score > 0.95 && second_distinct(hyps) < 0.8 * hyps[0].score;
+  {
+    const Pose T_best = hyps[0].T;
+    for (int axis = 0; axis < 3; ++axis)
+      for (int k = 1; k < 12; ++k) {
+        // Half turns are always tried (cheap, and they catch flipped parts); the full sweep
+        // only when the coarse level is not clear.
+        if (clear && k != 6) continue;
+        Pose turn = Pose::Identity();
+        turn.linear() = Eigen::AngleAxisd(k * M_PI / 6, tgt.axes.col(axis)).toRotationMatrix();
+        turn.translation() = tgt.centroid - turn.linear() * tgt.centroid;
+        refine_and_score(turn * T_best, hyps[0].stage + "+sweep");
+      }
+    std::sort(hyps.begin(), hyps.end(), by_score);
+  }
 
   // Fine ICP: point-to-plane (or point-to-point), reciprocal, normal-constrained.
   IcpOptions fine_icp;
   fine_icp.point_to_plane = p.point_to_plane;
   fine_icp.reciprocal = p.reciprocal;
   fine_icp.cos_normal = std::cos(p.normal_angle);
+  fine_icp.signed_normals = p.viewpoint.allFinite();
   fine_icp.max_dist = diag * p.coarse_voxel;
   fine_icp.min_dist = diag * p.fine_voxel;
   fine_icp.iterations = p.icp_iterations;
   fine_icp.converge = p.icp_converge;
+  const double inlier = diag * p.fine_voxel;
+  const double tight = 0.5 * inlier;
+
   const auto t_global = std::chrono::steady_clock::now();
+  // The top distinct hypotheses compete at the fine level on every fine point: a point is
+  // explained by a pose when its point-to-plane residual is within `tight`. The winner
+  // explains the most; the runner-up decides the ambiguity from the points the two disagree
+  // on (D1: only the winner explains them, D2: only the runner-up), so that a small datum
+  // feature (a flat, a hole) decides even when most of the part is symmetric.
+  std::vector<Hypothesis> finalists;
+  std::vector<std::vector<char>> expl;
+  // Explained = close to the model (point-to-plane within `tight`) with a compatible normal:
+  // the normal test keeps flash fins, which stick out flat from walls, from "explaining" a
+  // wrongly placed wall.
+  const float cos_tau = static_cast<float>(std::cos(p.normal_angle));
+  const bool signed_n = p.viewpoint.allFinite();
+  auto explained = [&](const Pose& T) {
+    std::vector<char> e(sub.size(), 0);
+    const Eigen::Matrix3f R = T.linear().cast<float>();
+    const Vec3f t = T.translation().cast<float>();
+    for (std::size_t i = 0; i < sub.size(); ++i) {
+      std::uint32_t j;
+      const Vec3f q = R * sub.points[i] + t;
+      if (!tgt.nearest_in_band(q, j)) continue;
+      if (std::abs((tgt.dense.points[j] - q).dot(tgt.dense.normals[j])) > static_cast<float>(tight)) continue;
+      const float c = (R * sub.normals[i]).dot(tgt.dense.normals[j]);
+      e[i] = (signed_n ? c : std::abs(c)) >= cos_tau;
+    }
+    return e;
+  };
+  {
+    IcpOptions quick = fine_icp;
+    quick.iterations = 8;
+    for (const auto& h : hyps) {
+      bool dup = false;
+      for (const auto& f : finalists) dup = dup || !distinct(f.T, h.T, diag);
+      if (dup) continue;
+      const IcpResult r = icp(sub.points, sub.normals, sub_tree, dense_t, diag, h.T, quick);
+      bool dup_after = false;
+      for (const auto& f : finalists) dup_after = dup_after || !distinct(f.T, r.T, diag);
+      if (dup_after) continue;
+      expl.push_back(explained(r.T));
+      const double count = static_cast<double>(std::count(expl.back().begin(), expl.back().end(), 1));
+      finalists.push_back({r.T, count, h.stage});
+      if (finalists.size() >= 16) break;
+    }
+  }
+  for (const auto& h : hyps) {
+    const Eigen::AngleAxisd aa(h.T.linear());
+    spdlog::trace("hypothesis {} score {:.4f} rot {:.2f} deg about [{:.3f} {:.3f} {:.3f}] t [{:.4f} {:.4f} {:.4f}]",
+                  h.stage, h.score, aa.angle() * 180 / M_PI, aa.axis().x(), aa.axis().y(), aa.axis().z(),
+                  h.T.translation().x(), h.T.translation().y(), h.T.translation().z());
+  }
+  for (const auto& f : finalists) {
+    const Eigen::AngleAxisd aa(f.T.linear());
+    spdlog::trace("finalist {} explains {:.0f} rot {:.2f} deg about [{:.3f} {:.3f} {:.3f}] t [{:.4f} {:.4f} {:.4f}]",
+                  f.stage, f.score, aa.angle() * 180 / M_PI, aa.axis().x(), aa.axis().y(), aa.axis().z(),
+                  f.T.translation().x(), f.T.translation().y(), f.T.translation().z());
+  }
+  std::size_t win = 0, runner = 0;
+  for (std::size_t k = 1; k < finalists.size(); ++k)
+    if (finalists[k].score > finalists[win].score) win = k;
+  res.ambiguity = 0;
+  if (finalists.size() > 1) {
+    runner = win == 0 ? 1 : 0;
+    for (std::size_t k = 0; k < finalists.size(); ++k)
+      if (k != win && finalists[k].score > finalists[runner].score) runner = k;
+    double d1 = 0, d2 = 0;
+    for (std::size_t i = 0; i < sub.size(); ++i) {
+      d1 += expl[win][i] && !expl[runner][i];
+      d2 += expl[runner][i] && !expl[win][i];
+    }
+    // A handful of disagreeing points decides nothing: the +5 keeps small counts ambiguous.
+    res.ambiguity = std::min(1.0, (d2 + 5) / (d1 + 5));
+  }
+  // Local search around the winner: small turns about the model's principal axes (the sweep's
+  // 30° grid and short ICP runs can leave a near-symmetric part a few degrees off).
+  {
+    auto count = [](const std::vector<char>& e) { return static_cast<double>(std::count(e.begin(), e.end(), 1)); };
+    Pose centre = finalists[win].T;
+    double best_count = finalists[win].score;
+    for (double step : {8.0, 4.0, 2.0, 1.0}) {
+      bool improved = true;
+      while (improved) {
+        improved = false;
+        for (int axis = 0; axis < 3; ++axis)
+          for (double sign : {-1.0, 1.0}) {
+            Pose turn = Pose::Identity();
+            turn.linear() = Eigen::AngleAxisd(sign * step * M_PI / 180, tgt.axes.col(axis)).toRotationMatrix();
+            turn.translation() = tgt.centroid - turn.linear() * tgt.centroid;
+            const Pose cand = turn * centre;
+            const double c = count(explained(cand));
+            if (c > best_count * 1.002) {
+              best_count = c;
+              centre = cand;
+              improved = true;
+            }
+          }
+      }
+    }
+    if (best_count > finalists[win].score) {
+      IcpOptions quick = fine_icp;
+      quick.iterations = 8;
+      finalists[win].T = icp(sub.points, sub.normals, sub_tree, dense_t, diag, centre, quick).T;
+    }
+  }
+  hyps[0] = finalists[win];
+
   IcpResult best = icp(sub.points, sub.normals, sub_tree, dense_t, diag, hyps[0].T, fine_icp);
-  // Polish: every fine point, point-to-plane against the O(1) band lookup, a few iterations
-  // (the noise-limited accuracy grows with the number of points).
+  // Polish: every fine point, robust point-to-plane against the O(1) band lookup (the
+  // noise-limited accuracy grows with the number of points).
   if (p.point_to_plane) {
+    const auto n = static_cast<long>(fine.size());
+    std::vector<float> resid(fine.size());
+    std::vector<std::uint32_t> match(fine.size());
     for (int it = 0; it < p.polish_iterations; ++it) {
       const Eigen::Matrix3f R = best.T.linear().cast<float>();
       const Vec3f t = best.T.translation().cast<float>();
-      const double thr = std::max(3.0 * best.rmse, 0.5 * diag * p.fine_voxel);
-      const auto n = static_cast<long>(fine.size());
+#pragma omp parallel for schedule(static) if (n >= 8192)
+      for (long i = 0; i < n; ++i) {
+        std::uint32_t j;
+        const Vec3f q = R * fine.points[i] + t;
+        resid[i] = -1.f;
+        if (tgt.nearest_in_band(q, j)) {
+          match[i] = j;
+          resid[i] = (tgt.dense.points[j] - q).dot(tgt.dense.normals[j]);
+        }
+      }
+      // Robust scale: the median absolute residual of the points in the band.
+      std::vector<float> valid;
+      valid.reserve(resid.size());
+      for (float v : resid)
+        if (v != -1.f) valid.push_back(std::abs(v));
+      if (valid.size() < 10) break;
+      std::nth_element(valid.begin(), valid.begin() + static_cast<long>(valid.size() / 2), valid.end());
+      const double sigma = 1.4826 * valid[valid.size() / 2];
+      // Graduated robust weights (Geman-McClure): the scale starts at the fine voxel, so
+      // features a millimetre or two off still steer the pose, and halves each pass down to
+      // 3.5 σ̂, where flashes and mixed points no longer count.
+      const double scale = std::max(3.5 * sigma, diag * p.fine_voxel * std::pow(0.5, it));
       Eigen::Matrix<double, 6, 6> AtA = Eigen::Matrix<double, 6, 6>::Zero();
       Eigen::Matrix<double, 6, 1> Atb = Eigen::Matrix<double, 6, 1>::Zero();
-#pragma omp parallel
-      {
-        Eigen::Matrix<double, 6, 6> A_loc = Eigen::Matrix<double, 6, 6>::Zero();
-        Eigen::Matrix<double, 6, 1> b_loc = Eigen::Matrix<double, 6, 1>::Zero();
-#pragma omp for schedule(static) nowait
-        for (long i = 0; i < n; ++i) {
-          const Vec3f pf = R * fine.points[i] + t;
-          std::uint32_t j;
-          if (!tgt.nearest_in_band(pf, j)) continue;
-          const Vec3 pp = pf.cast<double>();
-          const Vec3 nq = tgt.dense.normals[j].cast<double>();
-          const double e = (tgt.dense.points[j].cast<double>() - pp).dot(nq);
-          if (std::abs(e) > thr) continue;
-          Eigen::Matrix<double, 6, 1> a;
-          a << pp.cross(nq), nq;
-          A_loc += a * a.transpose();
-          b_loc += a * e;
-        }
-        // Fixed-order reduction keeps the result independent of scheduling.
-#pragma omp for ordered schedule(static, 1)
-        for (int k = 0; k < omp_get_num_threads(); ++k) {
-#pragma omp ordered
-          {
-            AtA += A_loc;
-            Atb += b_loc;
-          }
-        }
+      // Sequential accumulation in index order: the result does not depend on threads.
+      for (long i = 0; i < n; ++i) {
+        if (resid[i] == -1.f) continue;
+        const double e = resid[i];
+        if (std::abs(e) > 10 * scale) continue;
+        const Vec3 pp = best.T * fine.points[i].cast<double>();
+        const Vec3 nq = tgt.dense.normals[match[i]].cast<double>();
+        Eigen::Matrix<double, 6, 1> a;
+        a << pp.cross(nq), nq;
+        const double u = e / scale, w = 1.0 / ((1 + u * u) * (1 + u * u));
+        AtA += w * a * a.transpose();
+        Atb += w * a * e;
       }
       const Eigen::Matrix<double, 6, 1> x = AtA.ldlt().solve(Atb);
       if (!x.allFinite()) break;
@@ -650,13 +822,11 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
       dT.linear() = skew_exp(x.head<3>());
       dT.translation() = x.tail<3>();
       best.T = dT * best.T;
-      if (x.norm() * diag < 1e-8 * diag) break;
     }
   }
   const auto t_icp = std::chrono::steady_clock::now();
 
-  // Verdict: inliers of the fine subset, their RMSE, and the best distinct alternative.
-  const double inlier = diag * p.fine_voxel;
+  // Verdict: inliers of the fine subset and their RMSE (ambiguity from the finalists above).
   {
     const Eigen::Matrix3f R = best.T.linear().cast<float>();
     const Vec3f t = best.T.translation().cast<float>();
@@ -672,30 +842,6 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
     }
     res.fitness = static_cast<double>(in) / static_cast<double>(sub.size());
     res.rmse = in ? std::sqrt(sum2 / static_cast<double>(in)) : 0;
-  }
-  // Ambiguity: unexplained share of the best over that of the best distinct alternative,
-  // both refined at the fine level (symmetric parts give ~1).
-  res.ambiguity = 0;
-  {
-    // Half of the ICP subset suffices to compare poses.
-    PointCloud few;
-    for (std::size_t i = 0; i < sub.size(); i += 2) {
-      few.points.push_back(sub.points[i]);
-      few.normals.push_back(sub.normals[i]);
-    }
-    const KdTree few_tree(few.points);
-    IcpOptions quick = fine_icp;
-    quick.iterations = 6;
-    int tried = 0;
-    for (std::size_t k = 1; k < hyps.size(); ++k) {
-      if (!distinct(hyps[k].T, best.T, diag) || tried++ >= 2) continue;
-      const IcpResult alt = icp(few.points, few.normals, few_tree, dense_t, diag, hyps[k].T, quick);
-      if (!distinct(alt.T, best.T, diag)) continue;
-      const double s_best = lcp_score(few.points, dense_t, best.T, inlier);
-      const double s_alt = lcp_score(few.points, dense_t, alt.T, inlier);
-      res.ambiguity = std::min(1.0, (1 - s_best + 1e-3) / (1 - s_alt + 1e-3));
-      break;
-    }
   }
   const auto ms = [](auto a, auto b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
   spdlog::debug("register: preprocess = fine voxel {:.1f} + coarse/SOR {:.1f} + normals {:.1f} + subset {:.1f} ms",

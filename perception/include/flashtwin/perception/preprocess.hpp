@@ -17,6 +17,11 @@ std::string validate_cloud(const PointCloud& cloud, std::size_t min_points = 10)
 /// and re-normalised when present). Deterministic order. @pre voxel > 0.
 PointCloud voxel_downsample(const PointCloud& cloud, double voxel);
 
+/// The thesis's improved voxel grid (§3.4): per voxel the original point nearest the voxel's
+/// centroid is kept, so the output is a subset of the input (no averaging bias at edges and
+/// corners). Deterministic order. @pre voxel > 0.
+PointCloud voxel_downsample_nearest(const PointCloud& cloud, double voxel);
+
 /// Drops points whose mean distance to their k neighbours exceeds mean + std_mult · std.
 PointCloud remove_statistical_outliers(const PointCloud& cloud, int k, double std_mult);
 

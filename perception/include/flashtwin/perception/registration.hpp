@@ -79,12 +79,12 @@ struct RegistrationParams {
   bool reciprocal = true;             ///< keep only mutual nearest neighbours
   double normal_angle = 0.6;          ///< [rad] τ: reject pairs whose normals differ more
   int icp_iterations = 25;            ///< reciprocal, normal-constrained ICP iterations
-  int polish_iterations = 3;          ///< final point-to-plane passes over every fine point
+  int polish_iterations = 7;          ///< final robust point-to-plane passes over every fine point
   double icp_converge = 1e-3;         ///< stop when the relative error change is below this
   // Verdict.
   double min_fitness = 0.6;           ///< inlier share needed to be confident
   double max_rmse = 1.0 / 300;        ///< inlier RMSE allowed (fraction of the diagonal)
-  double max_ambiguity = 0.9;         ///< second-best distinct score / best allowed
+  double max_ambiguity = 0.6;         ///< runner-up evidence / winner evidence allowed (see Result)
   /// Source viewpoint for normal orientation ({S} frame of the source points); NaN = unknown
   /// (normals then point away from the centroid and are made consistent over neighbours).
   Vec3 viewpoint = Vec3::Constant(std::numeric_limits<double>::quiet_NaN());

@@ -1,0 +1,66 @@
+// A real scan of a casting in the cell (with flashes, table, fixture, noise) registered to its
+// CAD model.
+#include <gtest/gtest.h>
+#include <spdlog/spdlog.h>
+
+#include <cstdlib>
+
+#include "flashtwin/perception/registration.hpp"
+#include "flashtwin/pipeline/scenario.hpp"
+#include "flashtwin/sim/scan_cell.hpp"
+#include "test_util.hpp"
+
+using namespace flashtwin;
+using namespace flashtwin::perception;
+
+namespace {
+
+struct Case {
+  std::string scenario;
+  double max_mm, max_deg;
+  bool must_be_confident = true;  ///< false: the pose may be refused, but never wrong and confident
+};
+
+void check_scenario(const Case& c) {
+  if (std::getenv("FT_DEBUG")) spdlog::set_level(spdlog::level::debug);
+  const auto sc = pipeline::load_scenario(ftest::source_path("scenarios/" + c.scenario + ".yaml"));
+  const auto setup = pipeline::setup_cell(sc);
+  const std::string dir = ftest::temp_dir("reg_" + c.scenario);
+  const auto files = sim::write_cell(sc.robot, setup.spec, setup.casting, dir);
+  const auto scan = sim::scan_cell(files.mjcf, setup.casting, sc.scan, setup.spec.X_WM, setup.spec.X_WM);
+  const auto target = ModelTarget::from_mesh(setup.casting.nominal);
+  RegistrationParams p;
+  p.remove_support_plane = true;
+  p.viewpoint = Vec3::Zero();  // the sensors look along +z of {M} from near its origin
+  const RegistrationResult r = register_scan(scan.result.cloud_M, *target, p);
+  ASSERT_TRUE(r.ran) << r.message;
+  const Pose X_CM = setup.spec.X_WC.inverse() * setup.spec.X_WM;
+  const double deg = rotation_distance(r.T_target_source.linear(), X_CM.linear()) * 180 / M_PI;
+  // Translation error at the part: the mean displacement of the model points.
+  double mm = 0;
+  for (std::size_t i = 0; i < target->dense().size(); i += 50) {
+    const Vec3 q = target->dense().points[i].cast<double>();
+    mm = std::max(mm, ((r.T_target_source * (X_CM.inverse() * q)) - q).norm() * 1000);
+  }
+  std::printf("%s: %.4f mm, %.5f deg, fitness %.3f, rmse %.4f mm, ambiguity %.3f, %s, %.0f ms (%s)\n",
+              c.scenario.c_str(), mm, deg, r.fitness, r.rmse * 1000, r.ambiguity,
+              r.confident ? "confident" : "NOT confident", r.time_s * 1000, r.stage.c_str());
+  if (c.must_be_confident) EXPECT_TRUE(r.confident) << r.message;
+  // The safety property: a confident answer is an accurate answer.
+  if (r.confident || c.must_be_confident) {
+    EXPECT_LT(mm, c.max_mm);
+    EXPECT_LT(deg, c.max_deg);
+  }
+}
+
+}  // namespace
+
+TEST(CastingRegistration, DefaultPlateScanWithFlashesAndTable) { check_scenario({"default", 0.05, 0.02}); }
+// Known limitation: the round flange is symmetric but for a small flat on its rim and its
+// registration is not yet reliable; it must then refuse (not confident), never be confidently
+// wrong.
+TEST(CastingRegistration, RoundFlangeIsAccurateOrRefused) {
+  check_scenario({"round_flange", 0.05, 0.02, false});
+}
+TEST(CastingRegistration, Housing) { check_scenario({"housing", 0.05, 0.02}); }
+TEST(CastingRegistration, TiltedPlate) { check_scenario({"tilted", 0.05, 0.02}); }
