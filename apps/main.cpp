@@ -22,6 +22,8 @@
 #include "flashtwin/sim/cell.hpp"
 #include "flashtwin/sim/views.hpp"
 #include "flashtwin/sim/scan_cell.hpp"
+#include "flashtwin/perception/baselines.hpp"
+#include "flashtwin/perception/registration.hpp"
 #include "flashtwin/core/mesh.hpp"
 
 #ifndef FLASHTWIN_SOURCE_DIR
@@ -342,6 +344,80 @@ int cmd_render(const Common& c, const std::string& scenario_path, const std::str
   return kExitOk;
 }
 
+// A point cloud file, or a mesh file (its vertices) for the source.
+ft::PointCloud read_points(const std::string& path) {
+  const std::string ext = std::filesystem::path(path).extension().string();
+  if (ext == ".pcd" || ext == ".ply") {
+    try {
+      return ft::load_cloud(path);
+    } catch (const ft::ArgumentError&) {
+    }
+  }
+  const ft::TriangleMesh mesh = ft::load_mesh(path);
+  ft::PointCloud c;
+  for (const auto& v : mesh.vertices) c.points.push_back(v.cast<float>());
+  return c;
+}
+
+// The target: a mesh is sampled (area-uniform with its normals), a cloud is used as it is.
+std::shared_ptr<const ft::perception::ModelTarget> read_target(const std::string& path) {
+  const std::string ext = std::filesystem::path(path).extension().string();
+  if (ext == ".stl" || ext == ".obj" || ext == ".ply" || ext == ".off") {
+    try {
+      return ft::perception::ModelTarget::from_mesh(ft::load_mesh(path));
+    } catch (const ft::IoError&) {
+      throw;
+    } catch (const ft::InputError&) {
+      if (ext != ".ply") throw;  // a PLY without faces is a cloud
+    }
+  }
+  const ft::PointCloud c = ft::load_cloud(path);
+  try {
+    return ft::perception::ModelTarget::from_cloud(c);
+  } catch (const ft::ArgumentError& e) {
+    throw ft::InputError(path + ": " + e.what());
+  }
+}
+
+int cmd_register(const Common& c, const std::string& source_path, const std::string& target_path,
+                 const std::string& method, bool remove_plane, const std::string& viewpoint) {
+  const ft::PointCloud source = read_points(source_path);
+  const auto target = read_target(target_path);
+  ft::perception::RegistrationResult r;
+  if (method == "ours") {
+    ft::perception::RegistrationParams p;
+    p.remove_support_plane = remove_plane;
+    if (!viewpoint.empty()) {
+      const auto v = parse_numbers(viewpoint, 3, "--viewpoint");
+      p.viewpoint = ft::Vec3(v[0], v[1], v[2]);
+    }
+    r = ft::perception::register_scan(source, *target, p);
+  } else {
+    r = ft::perception::register_baseline(ft::perception::baseline_from_string(method), source,
+                                          target->dense());
+  }
+  if (!r.ran) throw ft::InputError(source_path + ": " + r.message);
+  if (c.json) {
+    json j;
+    j["T_target_source"] = pose_json(r.T_target_source);
+    j["confident"] = r.confident;
+    j["fitness"] = r.fitness;
+    j["rmse"] = r.rmse;
+    j["ambiguity"] = r.ambiguity;
+    j["time_s"] = r.time_s;
+    j["method"] = method;
+    j["stage"] = r.stage;
+    j["message"] = r.message;
+    std::cout << j.dump() << "\n";
+  } else {
+    print_pose("T_target_source (maps source points into the target frame)", r.T_target_source);
+    std::printf("%s: fitness %.3f, inlier RMSE %.4f mm, ambiguity %.3f, %.1f ms (%s)\n",
+                r.confident ? "confident" : "NOT confident", r.fitness, r.rmse * 1000, r.ambiguity,
+                r.time_s * 1000, r.message.c_str());
+  }
+  return r.confident ? kExitOk : kExitFailed;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -429,6 +505,23 @@ int main(int argc, char** argv) {
       ->required();
   scan->add_flag("--json", common.json, "Print points, time and rays/s as JSON");
 
+  auto* reg = app.add_subcommand(
+      "register", "Register a scan (source) to a CAD model or cloud (target): the pose that maps "
+                  "source points into the target frame; exit 1 when not confident");
+  std::string source_path, target_path, method = "ours", viewpoint;
+  bool remove_plane = false;
+  reg->add_option("--source", source_path, "Scan: PLY/PCD cloud (or a mesh's vertices)")->required();
+  reg->add_option("--target", target_path, "CAD model STL/OBJ/PLY (sampled) or a PLY/PCD cloud")
+      ->required();
+  reg->add_option("--method", method, "ours | sacia-ndt | ndt-icp | iss-3dsc-icp | fpcs-icp")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"ours", "sacia-ndt", "ndt-icp", "iss-3dsc-icp", "fpcs-icp"}));
+  reg->add_flag("--remove-plane", remove_plane,
+                "Remove the support plane (table) and keep the largest cluster above it (ours)");
+  reg->add_option("--viewpoint", viewpoint,
+                  "Sensor position \"x y z\" in the source frame, for normal orientation (ours)");
+  reg->add_flag("--json", common.json, "Print T_target_source (16 numbers, row-major) and the verdict");
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -457,6 +550,7 @@ int main(int argc, char** argv) {
     if (*render)
       return cmd_render(common, scenario, out, cameras, width, height, with_scan, with_truth);
     if (*scan) return cmd_scan(common, scenario, out);
+    if (*reg) return cmd_register(common, source_path, target_path, method, remove_plane, viewpoint);
   } catch (const ft::InputError& e) {
     std::fprintf(stderr, "flashtwin: error: %s\n", e.what());
     return kExitBadInput;
