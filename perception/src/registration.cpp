@@ -640,9 +640,8 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
     const Pose T_best = hyps[0].T;
     for (int axis = 0; axis < 3; ++axis)
       for (int k = 1; k < 12; ++k) {
-        // Half turns are always tried (cheap, and they catch flipped parts); the full sweep
-        // only when the coarse level is not clear.
-        if (clear && k != 6) continue;
+        // Only when the coarse level is not clear (near-symmetric or partially seen parts).
+        if (clear) continue;  // the PCA candidates already hold the half turns
         Pose turn = Pose::Identity();
         turn.linear() = Eigen::AngleAxisd(k * M_PI / 6, tgt.axes.col(axis)).toRotationMatrix();
         turn.translation() = tgt.centroid - turn.linear() * tgt.centroid;
@@ -695,17 +694,22 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
     IcpOptions quick = fine_icp;
     quick.iterations = 8;
     for (const auto& h : hyps) {
+      // Only hypotheses close to the best at the coarse level compete (each costs an ICP run).
+      if (h.score < 0.8 * hyps[0].score) break;
       bool dup = false;
       for (const auto& f : finalists) dup = dup || !distinct(f.T, h.T, diag);
       if (dup) continue;
-      const IcpResult r = icp(sub.points, sub.normals, sub_tree, dense_t, diag, h.T, quick);
+      // A lone clear winner needs no quick run: the fine ICP below starts from it.
+      const bool alone = clear;
+      const IcpResult r = alone ? IcpResult{h.T, 0, 0, 0}
+                                : icp(sub.points, sub.normals, sub_tree, dense_t, diag, h.T, quick);
       bool dup_after = false;
       for (const auto& f : finalists) dup_after = dup_after || !distinct(f.T, r.T, diag);
       if (dup_after) continue;
       expl.push_back(explained(r.T));
       const double count = static_cast<double>(std::count(expl.back().begin(), expl.back().end(), 1));
       finalists.push_back({r.T, count, h.stage});
-      if (finalists.size() >= 16) break;
+      if (finalists.size() >= 16 || alone) break;
     }
   }
   for (const auto& h : hyps) {
@@ -723,7 +727,10 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   std::size_t win = 0, runner = 0;
   for (std::size_t k = 1; k < finalists.size(); ++k)
     if (finalists[k].score > finalists[win].score) win = k;
-  res.ambiguity = 0;
+  // With a single finalist, the coarse level decides: unexplained share of the best over that
+  // of the best distinct alternative.
+  const double s2 = second_distinct(hyps);
+  res.ambiguity = s2 > 0 ? std::min(1.0, (1 - hyps[0].score + 1e-3) / (1 - s2 + 1e-3)) : 0.0;
   if (finalists.size() > 1) {
     runner = win == 0 ? 1 : 0;
     for (std::size_t k = 0; k < finalists.size(); ++k)
@@ -738,7 +745,7 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   }
   // Local search around the winner: small turns about the model's principal axes (the sweep's
   // 30° grid and short ICP runs can leave a near-symmetric part a few degrees off).
-  {
+  if (!clear) {
     auto count = [](const std::vector<char>& e) { return static_cast<double>(std::count(e.begin(), e.end(), 1)); };
     Pose centre = finalists[win].T;
     double best_count = finalists[win].score;
@@ -822,6 +829,7 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
       dT.linear() = skew_exp(x.head<3>());
       dT.translation() = x.tail<3>();
       best.T = dT * best.T;
+      if (scale <= 3.5 * sigma * 1.0001 && x.norm() < 1e-8) break;
     }
   }
   const auto t_icp = std::chrono::steady_clock::now();
