@@ -173,6 +173,20 @@ void save_pcd(const std::string& path, const PointCloud& cloud) {
 PointCloud load_cloud(const std::string& path) {
   require_readable(path);
   const std::string ext = lower_ext(path);
+  // PCL 1.13's readers crash on some malformed headers: check the header's shape first.
+  {
+    std::ifstream in(path, std::ios::binary);
+    std::string head(4096, '\0');
+    in.read(head.data(), static_cast<std::streamsize>(head.size()));
+    head.resize(static_cast<std::size_t>(in.gcount()));
+    auto has_line = [&](const std::string& word) {
+      return head.rfind(word, 0) == 0 || head.find("\n" + word) != std::string::npos;
+    };
+    if (ext == ".pcd" && !(has_line("FIELDS") && has_line("POINTS") && has_line("DATA")))
+      throw InputError(path + ": expected a PCD header (FIELDS, POINTS, DATA lines), got none");
+    if (ext == ".ply" && !(head.rfind("ply", 0) == 0 && head.find("end_header") != std::string::npos))
+      throw InputError(path + ": expected a PLY header ('ply' ... 'end_header'), got none");
+  }
   pcl::PCLPointCloud2 blob;
   int rc = -1;
   if (ext == ".pcd") {

@@ -214,3 +214,49 @@ TEST(Cli, BadCastingInputExitsTwo) {
     EXPECT_EQ(lines(r.err), 1) << r.err;
   }
 }
+
+TEST(Cli, RegisterRecoversAScanPoseAndRejectsBadClouds) {
+  const std::string dir = ftest::temp_dir("cli_register");
+  // A moved copy of a subsampled bunny registered back to the bunny mesh.
+  const flashtwin::TriangleMesh bunny =
+      flashtwin::load_mesh(std::string(FLASHTWIN_SHARED_DATA) + "/bunny/bun_zipper.ply");
+  const flashtwin::Pose X = flashtwin::pose_from_xyz_rpy(flashtwin::Vec3(0.05, -0.02, 0.1),
+                                                         flashtwin::Vec3(0.4, -1.1, 2.0));
+  flashtwin::PointCloud src;
+  for (std::size_t i = 0; i < bunny.vertices.size(); i += 3)
+    src.points.push_back((X.inverse() * bunny.vertices[i]).cast<float>());
+  flashtwin::save_pcd(dir + "/scan.pcd", src);
+  const CliRun r = run("register --json --source " + dir + "/scan.pcd --target " +
+                       std::string(FLASHTWIN_SHARED_DATA) + "/bunny/bun_zipper.ply");
+  ASSERT_EQ(r.code, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  EXPECT_TRUE(j["confident"].get<bool>());
+  const auto m = j["T_target_source"].get<std::vector<double>>();
+  ASSERT_EQ(m.size(), 16u);
+  EXPECT_NEAR(m[3], 0.05, 1e-4);
+  EXPECT_NEAR(m[7], -0.02, 1e-4);
+  EXPECT_NEAR(m[11], 0.1, 1e-4);
+
+  flashtwin::PointCloud few;
+  for (int i = 0; i < 5; ++i) few.points.emplace_back(0.01f * i, 0.f, 0.f);
+  flashtwin::save_ply(dir + "/few.ply", few);
+  flashtwin::PointCloud nan = src;
+  nan.points[3].x() = std::numeric_limits<float>::quiet_NaN();
+  flashtwin::save_pcd(dir + "/nan.pcd", nan);
+  {
+    std::ofstream f(dir + "/garbage.pcd");
+    f << "this is not a point cloud\n";
+  }
+  const std::string target = " --target " + std::string(FLASHTWIN_SHARED_DATA) + "/bunny/bun_zipper.ply";
+  const struct {
+    std::string file, needle;
+  } cases[] = {{"few.ply", "at least 10 points"},
+               {"nan.pcd", "point 3"},
+               {"garbage.pcd", "garbage.pcd"},
+               {"missing.pcd", "missing.pcd: file not found"}};
+  for (const auto& c : cases) {
+    const CliRun b = run("register --source " + dir + "/" + c.file + target);
+    EXPECT_EQ(b.code, 2) << c.file << "\n" << b.err;
+    EXPECT_NE(b.err.find(c.needle), std::string::npos) << c.file << "\n" << b.err;
+  }
+}
