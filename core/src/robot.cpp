@@ -122,11 +122,7 @@ RobotModel load_robot(const std::string& path) { return parse_robot(read_text_fi
 
 namespace {
 
-std::string num(double v) {
-  char b[40];
-  std::snprintf(b, sizeof b, "%.17g", v);
-  return b;
-}
+std::string num(double v) { return exact_number(v); }
 
 std::string origin_xml(const Pose& X) {
   const Vec3 t = X.translation();

@@ -86,6 +86,12 @@ std::string quat_wxyz_string(const Mat3& R) {
   return buf;
 }
 
+std::string exact_number(double v) {
+  char buf[40];
+  std::snprintf(buf, sizeof buf, "%.17g", v);
+  return buf;
+}
+
 std::string vec3_string(const Vec3& v) {
   char buf[96];
   std::snprintf(buf, sizeof buf, "%.17g %.17g %.17g", v.x(), v.y(), v.z());

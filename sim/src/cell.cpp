@@ -15,11 +15,7 @@ namespace flashtwin::sim {
 
 namespace {
 
-std::string num(double v) {
-  char b[40];
-  std::snprintf(b, sizeof b, "%.17g", v);
-  return b;
-}
+std::string num(double v) { return exact_number(v); }
 
 std::string pose_attrs(const Pose& X) {
   return "pos=\"" + vec3_string(X.translation()) + "\" quat=\"" + quat_wxyz_string(X.linear()) +

@@ -38,6 +38,9 @@ Mat3 nearest_rotation(const Mat3& M);
 /// "w x y z" quaternion text with full double precision (MJCF `quat` attribute).
 std::string quat_wxyz_string(const Mat3& R);
 
+/// A double as text with full precision (%.17g): round-trips exactly through files.
+std::string exact_number(double v);
+
 /// "x y z" text with full double precision.
 std::string vec3_string(const Vec3& v);
 
