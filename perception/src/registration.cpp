@@ -694,8 +694,9 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
     IcpOptions quick = fine_icp;
     quick.iterations = 8;
     for (const auto& h : hyps) {
-      // Only hypotheses close to the best at the coarse level compete (each costs an ICP run).
-      if (h.score < 0.8 * hyps[0].score) break;
+      // Only hypotheses close to the best at the coarse level compete (each costs an ICP run),
+      // but the best distinct rival always does unless the coarse level is clear.
+      if (h.score < 0.8 * hyps[0].score && (clear || finalists.size() >= 2)) break;
       bool dup = false;
       for (const auto& f : finalists) dup = dup || !distinct(f.T, h.T, diag);
       if (dup) continue;

@@ -64,3 +64,9 @@ TEST(CastingRegistration, RoundFlangeIsAccurateOrRefused) {
 }
 TEST(CastingRegistration, Housing) { check_scenario({"housing", 0.05, 0.02}); }
 TEST(CastingRegistration, TiltedPlate) { check_scenario({"tilted", 0.05, 0.02}); }
+TEST(CastingRegistration, UserMeshAngleBracket) { check_scenario({"user_mesh", 0.05, 0.02}); }
+TEST(CastingRegistration, NoisyHousingIsAccurateOrRefused) {
+  // 5x noise and 10x outliers (the scenario's calibration error is not applied here: the scan
+  // is taken from the true mount pose).
+  check_scenario({"noisy", 0.05, 0.02, false});
+}
