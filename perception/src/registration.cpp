@@ -325,23 +325,6 @@ IcpResult icp(const std::vector<Vec3f>& src, const std::vector<Vec3f>& src_norma
   return r;
 }
 
-// Share of points within `delta` of the target after T (largest common point set).
-double lcp_score(const std::vector<Vec3f>& pts, const TargetLevel& tgt, const Pose& T, double delta) {
-  if (pts.empty()) return 0;
-  const Eigen::Matrix3f R = T.linear().cast<float>();
-  const Vec3f t = T.translation().cast<float>();
-  const float d2max = static_cast<float>(delta * delta);
-  long in = 0;
-  const auto n = static_cast<long>(pts.size());
-#pragma omp parallel for reduction(+ : in) schedule(static) if (n >= 8192)
-  for (long i = 0; i < n; ++i) {
-    std::uint32_t j;
-    float d2;
-    if (tgt.tree->nearest(R * pts[i] + t, j, d2) && d2 <= d2max) ++in;
-  }
-  return static_cast<double>(in) / static_cast<double>(pts.size());
-}
-
 // ------------------------------------------------------------------ 4PCS
 
 struct Hypothesis {
@@ -570,7 +553,6 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   coarse_icp.min_dist = 2.5 * diag * p.coarse_voxel;
   coarse_icp.iterations = 15;
   coarse_icp.converge = 1e-3;
-  const double score_delta = diag * p.coarse_voxel * 0.75;
 
   Rng rng(12345);
   std::vector<Hypothesis> hyps;
@@ -595,7 +577,6 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
     }
     return static_cast<double>(in) / static_cast<double>(probe.size());
   };
-  (void)score_delta;
   auto refine_and_score = [&](const Pose& T, const std::string& stage) {
     const IcpResult r = icp(global.points, global.normals, global_tree, coarse_t, diag, T, coarse_icp);
     hyps.push_back({r.T, band_score(r.T, 2 * diag * p.fine_voxel), stage});
