@@ -816,21 +816,24 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   }
   const auto t_icp = std::chrono::steady_clock::now();
 
-  // Verdict: inliers of the fine subset and their RMSE (ambiguity from the finalists above).
+  // Verdict: inliers among all fine points by their point-to-plane residual to the model
+  // (distances to the nearest model sample would add the sample spacing), and their RMSE.
   {
     const Eigen::Matrix3f R = best.T.linear().cast<float>();
     const Vec3f t = best.T.translation().cast<float>();
     std::size_t in = 0;
     double sum2 = 0;
-    for (const auto& q : sub.points) {
+    for (const auto& q0 : fine.points) {
       std::uint32_t j;
-      float d2;
-      if (tgt.dense_tree->nearest(R * q + t, j, d2) && d2 <= inlier * inlier) {
+      const Vec3f q = R * q0 + t;
+      if (!tgt.nearest_in_band(q, j)) continue;
+      const double e = (tgt.dense.points[j] - q).dot(tgt.dense.normals[j]);
+      if (std::abs(e) <= inlier) {
         ++in;
-        sum2 += d2;
+        sum2 += e * e;
       }
     }
-    res.fitness = static_cast<double>(in) / static_cast<double>(sub.size());
+    res.fitness = static_cast<double>(in) / static_cast<double>(fine.size());
     res.rmse = in ? std::sqrt(sum2 / static_cast<double>(in)) : 0;
   }
   const auto ms = [](auto a, auto b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
