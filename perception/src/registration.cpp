@@ -227,10 +227,23 @@ struct TargetLevel {
   const std::vector<Vec3f>* points;
   const std::vector<Vec3f>* normals;
   const KdTree* tree;
+  const ModelTarget::Impl* band = nullptr;  ///< O(1) lookup near the surface (dense level)
+  /// Nearest target point: the band table near the surface, the k-d tree elsewhere.
+  bool nearest(const Vec3f& q, std::uint32_t& j, float& d2) const {
+    if (band && band->nearest_in_band(q, j)) {
+      d2 = ((*points)[j] - q).squaredNorm();
+      return true;
+    }
+    return tree->nearest(q, j, d2);
+  }
 };
 
-TargetLevel dense_level(const ModelTarget::Impl& t) { return {&t.dense.points, &t.dense.normals, t.dense_tree.get()}; }
-TargetLevel coarse_level(const ModelTarget::Impl& t) { return {&t.coarse.points, &t.coarse.normals, t.coarse_tree.get()}; }
+TargetLevel dense_level(const ModelTarget::Impl& t) {
+  return {&t.dense.points, &t.dense.normals, t.dense_tree.get(), &t};
+}
+TargetLevel coarse_level(const ModelTarget::Impl& t) {
+  return {&t.coarse.points, &t.coarse.normals, t.coarse_tree.get(), nullptr};
+}
 
 IcpResult icp(const std::vector<Vec3f>& src, const std::vector<Vec3f>& src_normals,
               const KdTree& src_tree, const TargetLevel& tgt, double diag, const Pose& T0,
@@ -261,7 +274,7 @@ IcpResult icp(const std::vector<Vec3f>& src, const std::vector<Vec3f>& src_norma
       const Vec3f p = R * src[i] + t;
       std::uint32_t j;
       float d2;
-      if (!tgt.tree->nearest(p, j, d2) || d2 > thr2) continue;
+      if (!tgt.nearest(p, j, d2) || d2 > thr2) continue;
       if (use_normals) {
         const float c = (R * src_normals[i]).dot((*tgt.normals)[j]);
         if ((o.signed_normals ? c : std::abs(c)) < cosn) continue;
@@ -821,11 +834,13 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   {
     const Eigen::Matrix3f R = best.T.linear().cast<float>();
     const Vec3f t = best.T.translation().cast<float>();
-    std::size_t in = 0;
+    long in = 0;
     double sum2 = 0;
-    for (const auto& q0 : fine.points) {
+    const auto n = static_cast<long>(fine.size());
+#pragma omp parallel for reduction(+ : in, sum2) schedule(static) if (n >= 8192)
+    for (long i = 0; i < n; ++i) {
       std::uint32_t j;
-      const Vec3f q = R * q0 + t;
+      const Vec3f q = R * fine.points[i] + t;
       if (!tgt.nearest_in_band(q, j)) continue;
       const double e = (tgt.dense.points[j] - q).dot(tgt.dense.normals[j]);
       if (std::abs(e) <= inlier) {
