@@ -10,6 +10,9 @@ OUT=out/default
 mkdir -p "$OUT"
 $FT cell scenarios/default.yaml -o "$OUT"
 $FT scan scenarios/default.yaml -o "$OUT"
+echo "--- pose of the casting from its scan (registration to the CAD model):"
+$FT register --source "$OUT/scan.ply" --target "$OUT/cell/casting_cad.stl" --remove-plane \
+  --viewpoint "0 0 0" | tee "$OUT/registration.txt"
 $FT render scenarios/default.yaml -o "$OUT"
 $FT render scenarios/default.yaml -o "$OUT" --truth --camera casting_closeup
 $FT workspace --samples 200000 -o "$OUT"
@@ -20,5 +23,5 @@ echo "--- inverse kinematics of that flange pose (all solutions within limits, d
 $FT ik --deg --pose "$pose" | tee "$OUT/ik.txt"
 echo
 echo "Outputs in $(pwd)/$OUT: cell.xml (open with: mujoco-simulate $OUT/cell.xml), robot.urdf,"
-echo "casting_cad.stl, scan.ply/.pcd/.json, render_*.png, scan_casting_closeup.png,"
+echo "casting_cad.stl, scan.ply/.pcd/.json, registration.txt, render_*.png, scan_casting_closeup.png,"
 echo "workspace.png, fk.txt, ik.txt"
