@@ -670,16 +670,27 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   // wrongly placed wall.
   const float cos_tau = static_cast<float>(std::cos(p.normal_angle));
   const bool signed_n = p.viewpoint.allFinite();
+  // Evidence points: the ICP subset when the coarse level is clear, otherwise up to 20,000
+  // fine points with their own normals (small datum features need many points to be seen).
+  PointCloud evidence_cloud;
+  if (!clear) {
+    const std::size_t stride = std::max<std::size_t>(1, fine.size() / 20000);
+    for (std::size_t i = 0; i < fine.size(); i += stride) evidence_cloud.points.push_back(fine.points[i]);
+    estimate_normals(evidence_cloud, p.normal_k, p.viewpoint);
+  }
+  const PointCloud& evidence = clear ? sub : evidence_cloud;
   auto explained = [&](const Pose& T) {
-    std::vector<char> e(sub.size(), 0);
+    std::vector<char> e(evidence.size(), 0);
     const Eigen::Matrix3f R = T.linear().cast<float>();
     const Vec3f t = T.translation().cast<float>();
-    for (std::size_t i = 0; i < sub.size(); ++i) {
+    const auto n = static_cast<long>(evidence.size());
+#pragma omp parallel for schedule(static) if (n >= 8192)
+    for (long i = 0; i < n; ++i) {
       std::uint32_t j;
-      const Vec3f q = R * sub.points[i] + t;
+      const Vec3f q = R * evidence.points[i] + t;
       if (!tgt.nearest_in_band(q, j)) continue;
       if (std::abs((tgt.dense.points[j] - q).dot(tgt.dense.normals[j])) > static_cast<float>(tight)) continue;
-      const float c = (R * sub.normals[i]).dot(tgt.dense.normals[j]);
+      const float c = (R * evidence.normals[i]).dot(tgt.dense.normals[j]);
       e[i] = (signed_n ? c : std::abs(c)) >= cos_tau;
     }
     return e;
@@ -731,7 +742,7 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
     for (std::size_t k = 0; k < finalists.size(); ++k)
       if (k != win && finalists[k].score > finalists[runner].score) runner = k;
     double d1 = 0, d2 = 0;
-    for (std::size_t i = 0; i < sub.size(); ++i) {
+    for (std::size_t i = 0; i < evidence.size(); ++i) {
       d1 += expl[win][i] && !expl[runner][i];
       d2 += expl[runner][i] && !expl[win][i];
     }
