@@ -56,9 +56,13 @@ void check_scenario(const Case& c) {
 }  // namespace
 
 TEST(CastingRegistration, DefaultPlateScanWithFlashesAndTable) { check_scenario({"default", 0.05, 0.02}); }
-// The round flange is symmetric but for a small flat on its rim: the evidence of the flat
-// alone must decide between the turned poses.
-TEST(CastingRegistration, RoundFlangeDecidedByItsRimFlat) { check_scenario({"round_flange", 0.05, 0.02}); }
+// The round flange is symmetric but for a small flat on its rim: only the flat's evidence
+// decides between the turned poses. Today it is registered and confident, but the decision is
+// fragile (a smaller global point set turns it 135°, then refused), so the test asserts the
+// safety property: accurate, or refused.
+TEST(CastingRegistration, RoundFlangeIsAccurateOrRefused) {
+  check_scenario({"round_flange", 0.05, 0.02, false});
+}
 TEST(CastingRegistration, Housing) { check_scenario({"housing", 0.05, 0.02}); }
 TEST(CastingRegistration, TiltedPlate) { check_scenario({"tilted", 0.05, 0.02}); }
 TEST(CastingRegistration, UserMeshAngleBracket) { check_scenario({"user_mesh", 0.05, 0.02}); }
