@@ -193,7 +193,7 @@ int cmd_cell(const Common& c, const std::string& scenario_path, const std::strin
                setup.casting.description, setup.casting.nominal.num_triangles(),
                setup.casting.fins.size(), setup.casting.flash_volume() * 1e9);
   const auto files = ft::sim::write_cell(sc.robot, setup.spec, setup.casting, out);
-  const auto sum = ft::sim::check_mjcf(files.mjcf);
+  const auto& sum = files.model;
   if (c.json) {
     json j;
     j["scenario"] = sc.name;

@@ -37,11 +37,6 @@ void require_readable(const std::string& path) {
   if (!in) throw IoError(path + ": cannot open for reading");
 }
 
-// Writes bytes to path via a temporary file, renamed into place when complete.
-void write_binary_atomic(const std::string& path, const std::string& bytes) {
-  write_text_file(path, bytes);
-}
-
 template <typename T>
 void put(std::string& s, T v) {
   char b[sizeof(T)];
@@ -125,7 +120,7 @@ void save_mesh(const std::string& path, const TriangleMesh& mesh) {
   } else {
     throw ArgumentError(path + ": expected a .stl, .ply or .obj file name, got '" + ext + "'");
   }
-  write_binary_atomic(path, out);
+  write_text_file(path, out);
 }
 
 void save_ply(const std::string& path, const PointCloud& cloud) {
@@ -146,7 +141,7 @@ void save_ply(const std::string& path, const PointCloud& cloud) {
       for (int k = 0; k < 3; ++k) put<float>(out, cloud.normals[i][k]);
     if (has_l) put<std::uint8_t>(out, cloud.labels[i]);
   }
-  write_binary_atomic(path, out);
+  write_text_file(path, out);
 }
 
 void save_pcd(const std::string& path, const PointCloud& cloud) {
@@ -167,7 +162,7 @@ void save_pcd(const std::string& path, const PointCloud& cloud) {
       for (int k = 0; k < 3; ++k) put<float>(out, cloud.normals[i][k]);
     if (has_l) put<std::uint32_t>(out, cloud.labels[i]);
   }
-  write_binary_atomic(path, out);
+  write_text_file(path, out);
 }
 
 PointCloud load_cloud(const std::string& path) {

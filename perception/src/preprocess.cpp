@@ -31,9 +31,10 @@ std::string validate_cloud(const PointCloud& cloud, std::size_t min_points) {
 
 namespace {
 
-// Points sorted by voxel key (ties by index): runs of equal keys are the voxels.
-std::vector<std::pair<std::uint64_t, std::uint32_t>> sorted_voxel_keys(const PointCloud& cloud,
-                                                                       double voxel) {
+// Calls f(indices of one voxel's points) for every occupied voxel, in voxel-key order: points
+// are sorted by key (ties by index), so each voxel is a run. Faster than hashing, deterministic.
+template <typename F>
+void for_each_voxel(const PointCloud& cloud, double voxel, F&& f) {
   const double inv = 1.0 / voxel;
   std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(cloud.size());
   for (std::size_t i = 0; i < cloud.size(); ++i) {
@@ -47,7 +48,20 @@ std::vector<std::pair<std::uint64_t, std::uint32_t>> sorted_voxel_keys(const Poi
                 static_cast<std::uint32_t>(i)};
   }
   std::sort(keyed.begin(), keyed.end());
-  return keyed;
+  std::vector<std::uint32_t> run;
+  for (std::size_t a = 0; a < keyed.size();) {
+    run.clear();
+    std::size_t b = a;
+    for (; b < keyed.size() && keyed[b].first == keyed[a].first; ++b) run.push_back(keyed[b].second);
+    f(run);
+    a = b;
+  }
+}
+
+Eigen::Vector3d centroid_of(const PointCloud& cloud, const std::vector<std::uint32_t>& run) {
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  for (std::uint32_t i : run) c += cloud.points[i].cast<double>();
+  return c / static_cast<double>(run.size());
 }
 
 }  // namespace
@@ -55,57 +69,41 @@ std::vector<std::pair<std::uint64_t, std::uint32_t>> sorted_voxel_keys(const Poi
 PointCloud voxel_downsample(const PointCloud& cloud, double voxel) {
   FT_ASSERT(voxel > 0);
   const bool has_n = cloud.normals.size() == cloud.size() && !cloud.empty();
-  // Sorting by voxel key then averaging each run is faster than hashing and deterministic
-  // (output ordered by voxel key).
-  const auto keyed = sorted_voxel_keys(cloud, voxel);
   PointCloud out;
-  for (std::size_t a = 0; a < keyed.size();) {
-    std::size_t b = a;
-    Eigen::Vector3d p = Eigen::Vector3d::Zero(), n = Eigen::Vector3d::Zero();
-    for (; b < keyed.size() && keyed[b].first == keyed[a].first; ++b) {
-      const std::uint32_t i = keyed[b].second;
-      p += cloud.points[i].cast<double>();
-      if (has_n) {
-        // Average normals up to sign, relative to the first one of the voxel.
-        const Eigen::Vector3d ni = cloud.normals[i].cast<double>();
-        n += (b > a && n.dot(ni) < 0) ? -ni : ni;
-      }
+  for_each_voxel(cloud, voxel, [&](const std::vector<std::uint32_t>& run) {
+    out.points.push_back(centroid_of(cloud, run).cast<float>());
+    if (!has_n) return;
+    // Average normals up to sign, relative to the first one of the voxel.
+    Eigen::Vector3d n = Eigen::Vector3d::Zero();
+    for (std::uint32_t i : run) {
+      const Eigen::Vector3d ni = cloud.normals[i].cast<double>();
+      n += n.dot(ni) < 0 ? -ni : ni;
     }
-    out.points.push_back((p / static_cast<double>(b - a)).cast<float>());
-    if (has_n) {
-      const double len = n.norm();
-      out.normals.push_back(len > 0 ? Vec3f((n / len).cast<float>()) : Vec3f::UnitZ());
-    }
-    a = b;
-  }
+    const double len = n.norm();
+    out.normals.push_back(len > 0 ? Vec3f((n / len).cast<float>()) : Vec3f::UnitZ());
+  });
   return out;
 }
 
 PointCloud voxel_downsample_nearest(const PointCloud& cloud, double voxel) {
   FT_ASSERT(voxel > 0);
   const bool has_n = cloud.normals.size() == cloud.size() && !cloud.empty();
-  const auto keyed = sorted_voxel_keys(cloud, voxel);
   PointCloud out;
-  for (std::size_t a = 0; a < keyed.size();) {
-    std::size_t b = a;
-    Eigen::Vector3d c = Eigen::Vector3d::Zero();
-    for (; b < keyed.size() && keyed[b].first == keyed[a].first; ++b)
-      c += cloud.points[keyed[b].second].cast<double>();
-    c /= static_cast<double>(b - a);
-    // The voxel's points are at hand in the sorted run: a linear scan finds the nearest.
-    std::uint32_t best = keyed[a].second;
+  for_each_voxel(cloud, voxel, [&](const std::vector<std::uint32_t>& run) {
+    // The voxel's points are at hand: a linear scan finds the one nearest the centroid.
+    const Eigen::Vector3d c = centroid_of(cloud, run);
+    std::uint32_t best = run.front();
     double best_d2 = std::numeric_limits<double>::infinity();
-    for (std::size_t k = a; k < b; ++k) {
-      const double d2 = (cloud.points[keyed[k].second].cast<double>() - c).squaredNorm();
+    for (std::uint32_t i : run) {
+      const double d2 = (cloud.points[i].cast<double>() - c).squaredNorm();
       if (d2 < best_d2) {
         best_d2 = d2;
-        best = keyed[k].second;
+        best = i;
       }
     }
     out.points.push_back(cloud.points[best]);
     if (has_n) out.normals.push_back(cloud.normals[best]);
-    a = b;
-  }
+  });
   return out;
 }
 

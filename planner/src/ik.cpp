@@ -107,7 +107,6 @@ IkResult ik_flange(const RobotModel& robot, const Pose& X_BE, const IkParams& pa
 
   std::vector<IkSolution> all;
   bool any_reach = false;
-  double reach_cos = 0;
   for (int s = 0; s < (res.shoulder_singular ? 1 : 2); ++s) {
     const bool front = s == 0;
     const double X = front ? fwd : -fwd;
@@ -115,7 +114,6 @@ IkResult ik_flange(const RobotModel& robot, const Pose& X_BE, const IkParams& pa
     // Wrist centre in the plane of the upper arm (frame {1} coordinates).
     const double x = X - a1, y = d1 - pw.z();
     double c_psi = (x * x + y * y - a2 * a2 - L * L) / (2 * a2 * L);
-    reach_cos = c_psi;
     if (std::abs(c_psi) > 1) {
       // Slack for poses exactly at the edge of the reach (stretched/folded elbow).
       const double excess = std::abs(std::hypot(x, y) - (c_psi > 0 ? a2 + L : std::abs(a2 - L)));
@@ -177,7 +175,6 @@ IkResult ik_flange(const RobotModel& robot, const Pose& X_BE, const IkParams& pa
                   "%.4f and %.4f m",
                   dist, std::abs(a2 - L), a2 + L);
     res.message = b;
-    (void)reach_cos;
     return res;
   }
 

@@ -273,7 +273,7 @@ CellFiles write_cell(const RobotModel& robot, const CellSpec& spec, const Castin
   write_ground_truth(casting, spec.X_WC, f.truth);
   write_text_file(f.mjcf, cell_mjcf(robot, spec, &assets));
   write_text_file(f.urdf, robot_urdf(robot));
-  check_mjcf(f.mjcf);
+  f.model = check_mjcf(f.mjcf);
   return f;
 }
 

@@ -43,12 +43,19 @@ struct CastingAssets {
 std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec,
                       const CastingAssets* casting = nullptr);
 
+/// Summary of a compiled MuJoCo model, for users and tests.
+struct ModelSummary {
+  int nbody = 0, njnt = 0, nu = 0, ngeom = 0, nsite = 0, ncam = 0;
+  double timestep = 0;
+};
+
 /// Files written by write_cell.
 struct CellFiles {
   std::string mjcf;         ///< DIR/cell.xml (self-contained with DIR/meshes/)
   std::string urdf;         ///< DIR/robot.urdf
   std::string cad;          ///< DIR/casting_cad.stl: the nominal casting in {C} (the "CAD model")
   std::string truth;        ///< DIR/truth/: ground truth for scoring only
+  ModelSummary model;       ///< what MuJoCo compiled from cell.xml
 };
 
 /// Writes the cell: DIR/cell.xml, DIR/meshes/*.stl, DIR/robot.urdf, DIR/casting_cad.stl and the
@@ -67,12 +74,6 @@ void write_ground_truth(const Casting& casting, const Pose& X_WC, const std::str
 /// lowest point of the rotated casting touches the table.
 Pose rest_on_table(const CellSpec& spec, const TriangleMesh& nominal, double x, double y,
                    const Mat3& R_TC);
-
-/// Summary of a compiled MuJoCo model, for users and tests.
-struct ModelSummary {
-  int nbody = 0, njnt = 0, nu = 0, ngeom = 0, nsite = 0, ncam = 0;
-  double timestep = 0;
-};
 
 /// Compiles an MJCF file with MuJoCo. @throws InputError with MuJoCo's message.
 ModelSummary check_mjcf(const std::string& path);
