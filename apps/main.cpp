@@ -11,10 +11,14 @@
 #include <iostream>
 #include <nlohmann/json.hpp>
 #include <sstream>
+#include <unistd.h>
 
 #include "flashtwin/core/errors.hpp"
 #include "flashtwin/core/io.hpp"
 #include "flashtwin/core/robot.hpp"
+#include "flashtwin/core/mesh_query.hpp"
+#include "flashtwin/perception/flash_detection.hpp"
+#include "flashtwin/pipeline/run.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
 #include "flashtwin/planner/ik.hpp"
 #include "flashtwin/planner/kinematics.hpp"
@@ -418,6 +422,121 @@ int cmd_register(const Common& c, const std::string& source_path, const std::str
   return r.confident ? kExitOk : kExitFailed;
 }
 
+// A pose file: JSON holding 16 row-major numbers, either as the whole document, or under
+// "T_target_source" (what `register --json` prints) or "X_CM"; 4x4 nested arrays work too.
+ft::Pose read_pose_file(const std::string& path) {
+  json j;
+  try {
+    j = json::parse(ft::read_text_file(path));
+  } catch (const json::parse_error& e) {
+    throw ft::InputError(path + ": expected JSON with a 4x4 pose, got a parse error (" + e.what() + ")");
+  }
+  if (j.is_object()) {
+    if (j.contains("T_target_source")) j = j["T_target_source"];
+    else if (j.contains("X_CM")) j = j["X_CM"];
+    else throw ft::InputError(path + ": expected key 'T_target_source' or 'X_CM' with 16 numbers");
+  }
+  std::vector<double> v;
+  const auto collect = [&](const json& a, auto&& self) -> void {
+    if (a.is_array()) {
+      for (const auto& e : a) self(e, self);
+    } else if (a.is_number()) {
+      v.push_back(a.get<double>());
+    } else {
+      throw ft::InputError(path + ": expected numbers in the pose, got " + a.dump());
+    }
+  };
+  collect(j, collect);
+  if (v.size() != 16)
+    throw ft::InputError(path + ": expected 16 numbers (row-major 4x4), got " + std::to_string(v.size()));
+  std::array<double, 16> a{};
+  std::copy(v.begin(), v.end(), a.begin());
+  return ft::pose_from_row_major(a, path);
+}
+
+int cmd_detect(const Common& c, const std::string& scan_path, const std::string& cad_path,
+               const std::string& pose_path, const std::string& out) {
+  const ft::PointCloud scan = read_points(scan_path);
+  const ft::TriangleMesh cad = ft::load_mesh(cad_path);
+  const ft::Pose X_CM = read_pose_file(pose_path);
+  const ft::MeshBvh bvh(cad);
+  ft::perception::DetectionResult r;
+  try {
+    r = ft::perception::detect_flash(scan, bvh, X_CM, {});
+  } catch (const ft::ArgumentError& e) {
+    throw ft::InputError(scan_path + " / " + cad_path + ": " + e.what());
+  }
+  ft::pipeline::write_paths(out, r);
+  ft::PointCloud lab;
+  for (const auto& p : scan.points) lab.points.push_back((X_CM * p.cast<double>()).cast<float>());
+  lab.labels = r.labels;
+  ft::save_ply((std::filesystem::path(out) / "scan_labelled.ply").string(), lab);
+  std::size_t flash = 0;
+  for (auto l : r.labels) flash += l == ft::perception::kDetectFlash;
+  double len = 0;
+  for (const auto& p : r.paths) len += p.length();
+  if (c.json) {
+    json j;
+    j["regions"] = r.regions.size();
+    j["paths"] = r.paths.size();
+    j["path_length"] = len;
+    j["flash_points"] = flash;
+    j["noise_sigma"] = r.noise_sigma;
+    j["threshold"] = r.threshold;
+    j["time_s"] = r.time_s;
+    j["message"] = r.message;
+    j["nothing_to_grind"] = r.paths.empty();
+    j["paths_json"] = (std::filesystem::path(out) / "paths.json").string();
+    std::cout << j.dump() << "\n";
+  } else {
+    std::printf("%s\n%zu flash points, %zu region(s), %zu path(s), %.1f mm of grinding line; noise "
+                "sigma %.4f mm, threshold %.4f mm; %.3f s\n%s/paths.json, paths.ply, "
+                "scan_labelled.ply (frame {C})\n",
+                r.message.c_str(), flash, r.regions.size(), r.paths.size(), len * 1000,
+                r.noise_sigma * 1000, r.threshold * 1000, r.time_s, out.c_str());
+  }
+  return kExitOk;
+}
+
+int cmd_run(const Common& c, const std::string& scenario_path, const std::string& out,
+            long long seed_override) {
+  ft::pipeline::Scenario sc = ft::pipeline::load_scenario(scenario_path);
+  if (seed_override >= 0) {
+    sc.seed = static_cast<std::uint64_t>(seed_override);
+    sc.scan.seed = sc.seed;
+    sc.casting.seed = sc.seed;
+  }
+  ft::pipeline::RunOptions opt;
+  opt.out_dir = out;
+  const bool tty = !c.json && isatty(fileno(stderr));
+  opt.progress = [&](const std::string& stage, double f) {
+    if (c.json) return;
+    if (tty) {
+      const int w = 30, k = static_cast<int>(f * w);
+      std::fprintf(stderr, "\r[%s%s] %3.0f%% %-14s", std::string(k, '#').c_str(),
+                   std::string(w - k, '.').c_str(), f * 100, stage.c_str());
+      if (f >= 1) std::fprintf(stderr, "\n");
+    } else {
+      spdlog::info("stage: {}", stage);
+    }
+  };
+  const auto r = ft::pipeline::run_scenario(sc, opt);
+  const auto violations = ft::pipeline::check_expectations(sc, r.metrics);
+  if (c.json) {
+    std::cout << r.metrics.dump() << "\n";
+  } else {
+    std::printf("scenario '%s' (seed %llu): %s\n", sc.name.c_str(),
+                static_cast<unsigned long long>(sc.seed), r.verdict.c_str());
+    for (const auto& [k, v] : r.metrics.items())
+      if (v.is_number_float()) std::printf("  %-40s %.4g\n", k.c_str(), v.get<double>());
+      else if (!v.is_string()) std::printf("  %-40s %s\n", k.c_str(), v.dump().c_str());
+    std::printf("outputs: %s/metrics.json\n", out.c_str());
+  }
+  for (const auto& v : violations) std::fprintf(stderr, "flashtwin: expectation failed: %s\n", v.c_str());
+  if (!violations.empty()) return kExitFailed;
+  return r.exit_code;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -522,6 +641,30 @@ int main(int argc, char** argv) {
                   "Sensor position \"x y z\" in the source frame, for normal orientation (ours)");
   reg->add_flag("--json", common.json, "Print T_target_source (16 numbers, row-major) and the verdict");
 
+  auto* det = app.add_subcommand(
+      "detect", "Find flashes in a registered scan: grinding paths on the CAD surface (exit 0 "
+                "with an empty path when there is nothing to grind)");
+  std::string scan_path, cad_path, pose_path;
+  det->add_option("--scan", scan_path, "Scan PLY/PCD (points in the scanner frame {M})")->required();
+  det->add_option("--cad", cad_path, "CAD model of the casting (STL/OBJ/PLY, metres, frame {C})")
+      ->required();
+  det->add_option("--pose", pose_path,
+                  "JSON pose X_CM mapping scan points into {C}: 16 row-major numbers, or the "
+                  "output of `register --json` (key T_target_source)")
+      ->required();
+  det->add_option("-o,--output", out, "Output folder (paths.json, paths.ply, scan_labelled.ply)")
+      ->required();
+  det->add_flag("--json", common.json, "Print a JSON summary");
+
+  auto* run = app.add_subcommand(
+      "run", "Run a scenario end to end (cell, scan, registration, flash detection, scoring) "
+             "and write DIR/metrics.json; exit 1 when refused or an expect: bound fails");
+  long long run_seed = -1;
+  run->add_option("scenario", scenario, "Scenario YAML")->required();
+  run->add_option("-o,--output", out, "Output folder")->required();
+  run->add_option("--seed", run_seed, "Override the scenario's seed (casting, placement, scan)");
+  run->add_flag("--json", common.json, "Print metrics.json to stdout");
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -550,6 +693,8 @@ int main(int argc, char** argv) {
     if (*render)
       return cmd_render(common, scenario, out, cameras, width, height, with_scan, with_truth);
     if (*scan) return cmd_scan(common, scenario, out);
+    if (*det) return cmd_detect(common, scan_path, cad_path, pose_path, out);
+    if (*run) return cmd_run(common, scenario, out, run_seed);
     if (*reg) return cmd_register(common, source_path, target_path, method, remove_plane, viewpoint);
   } catch (const ft::InputError& e) {
     std::fprintf(stderr, "flashtwin: error: %s\n", e.what());

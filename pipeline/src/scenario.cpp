@@ -200,6 +200,57 @@ Scenario load_scenario(const std::string& path) {
   sc.scan.threads = 2;
   if (root.has("scanner")) read_scanner(root.at("scanner"), sc);
 
+  if (root.has("perception")) {
+    const ConfigNode pr = root.at("perception");
+    if (pr.has("detection")) {
+      const ConfigNode d = pr.at("detection");
+      auto& dp = sc.detection;
+      dp.crop_margin = d.get_double("crop_margin", 0, 0.5, dp.crop_margin);
+      dp.noise_sigma = d.get_double("noise_sigma", -1, 0.005, dp.noise_sigma);
+      dp.threshold_sigmas = d.get_double("threshold_sigmas", 0.5, 50, dp.threshold_sigmas);
+      dp.min_threshold = d.get_double("min_threshold", 1e-6, 0.01, dp.min_threshold);
+      dp.max_threshold = d.get_double("max_threshold", dp.min_threshold, 0.02, dp.max_threshold);
+      dp.cluster_tolerance = d.get_double("cluster_tolerance", 0, 0.05, dp.cluster_tolerance);
+      dp.min_region_points =
+          static_cast<int>(d.get_int("min_region_points", 3, 1000000, dp.min_region_points));
+      dp.alpha = d.get_double("alpha", 0, 0.05, dp.alpha);
+      dp.inner_band = d.get_double("inner_band", 0, 0.05, dp.inner_band);
+      dp.path_voxel = d.get_double("path_voxel", 1e-5, 0.05, dp.path_voxel);
+      dp.gap = d.get_double("gap", 0, 0.5, dp.gap);
+      dp.smoothing = static_cast<int>(d.get_int("smoothing", 0, 100, dp.smoothing));
+      dp.mid_plane = d.get_bool("mid_plane", dp.mid_plane);
+    }
+  }
+
+  if (root.has("expect")) {
+    const ConfigNode ex = root.at("expect");
+    if (!ex.is_map()) ex.fail("expected a mapping of metric key: [min, max] or true/false");
+    for (const auto& key : ex.keys()) {
+      const ConfigNode v = ex.at(key);
+      Expectation e;
+      e.key = key;
+      if (v.is_sequence()) {
+        if (v.size() != 2) v.fail("expected [min, max] (use null for an open end)");
+        const auto bound = [&](std::size_t i, double open) {
+          const ConfigNode b = v[i];
+          if (b.is_null()) return open;
+          return b.as_double();
+        };
+        e.lo = bound(0, -1e300);
+        e.hi = bound(1, 1e300);
+        if (!(e.lo <= e.hi)) v.fail("expected min <= max");
+      } else if (v.is_scalar() && (v.as_string() == "true" || v.as_string() == "false")) {
+        e.is_flag = true;
+        e.flag = v.as_bool();
+      } else if (v.is_scalar()) {
+        e.lo = e.hi = v.as_double();
+      } else {
+        v.fail("expected [min, max], a number or true/false");
+      }
+      sc.expect.push_back(e);
+    }
+  }
+
   root.check_all_used();
   return sc;
 }

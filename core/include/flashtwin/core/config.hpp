@@ -27,6 +27,7 @@ class ConfigNode {
   bool is_map() const { return node_.IsMap(); }
   bool is_sequence() const { return node_.IsSequence(); }
   bool is_scalar() const { return node_.IsScalar(); }
+  bool is_null() const { return node_.IsNull(); }
   std::size_t size() const { return node_.size(); }
 
   /// True when the map has `key` (marks it as known).

@@ -3,7 +3,10 @@
 #include <cstdint>
 #include <string>
 
+#include <vector>
+
 #include "flashtwin/core/robot.hpp"
+#include "flashtwin/perception/flash_detection.hpp"
 #include "flashtwin/sim/casting.hpp"
 #include "flashtwin/sim/cell.hpp"
 #include "flashtwin/sim/scanner.hpp"
@@ -20,6 +23,15 @@ struct Placement {
   bool random_tilt = false;      ///< with random: any orientation in SO(3)
 };
 
+/// One bound of the scenario's `expect:` block: a metric within [lo, hi], or a flag equal to
+/// `flag` (for boolean metrics).
+struct Expectation {
+  std::string key;  ///< metrics.json key, e.g. "path.rmse_mm"
+  double lo = -1e300, hi = 1e300;
+  bool is_flag = false;
+  bool flag = false;
+};
+
 struct Scenario {
   std::string name;
   std::string file;         ///< the scenario file it was read from
@@ -32,6 +44,8 @@ struct Scenario {
   sim::ScanParams scan;                ///< views, noise, seed, threads
   double calibration_translation = 0;  ///< [m] true X_WM differs from the nominal one by this
   double calibration_rotation = 0;     ///< [rad]
+  perception::DetectionParams detection;  ///< `perception.detection:` overrides
+  std::vector<Expectation> expect;        ///< `expect:` bounds checked by regression runs
 };
 
 /// Reads and validates a scenario; relative paths inside are resolved against its folder.

@@ -1,0 +1,111 @@
+#pragma once
+// Flash detection (thesis §3.3–3.4): with the casting's estimated pose, the scan is compared
+// with the CAD model; points off the nominal surface are clustered into flash regions; each
+// region's alpha-shape boundary is split into the inner part (on the casting: the grinding
+// line) and the outer part; the inner boundary is snapped onto the CAD surface, thinned by
+// the improved voxel grid and ordered into polylines. Never reads ground truth.
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "flashtwin/core/mesh.hpp"
+#include "flashtwin/core/mesh_query.hpp"
+
+namespace flashtwin::perception {
+
+/// Per-point label of a detection.
+enum DetectLabel : std::uint8_t {
+  kDetectBody = 0,     ///< on the nominal surface (within the threshold)
+  kDetectFlash = 1,    ///< in a flash region
+  kDetectIgnored = 2,  ///< outside the CAD box, on a support plane (table, fixture) or noise
+};
+
+struct DetectionParams {
+  double crop_margin = 0.012;       ///< [m] the CAD bounding box grown by this is kept
+  double noise_sigma = -1;          ///< [m] scanner noise; < 0: estimated from the points
+                                    ///< on the CAD surface (robust, median absolute distance)
+  double threshold_sigmas = 4.0;    ///< flash candidates lie farther than this × σ from the CAD
+  double min_threshold = 0.08e-3;   ///< [m] lower bound of that threshold
+  double max_threshold = 1.0e-3;    ///< [m] upper bound of that threshold
+  double cluster_tolerance = 0;     ///< [m] Euclidean clustering; 0: 3 × spacing across lines
+  int min_region_points = 40;       ///< smaller clusters are dropped as noise
+  double support_distance = 0.5e-3; ///< [m] inlier band of support planes (table, fixture)
+  double support_side_tolerance = 0.5e-3;  ///< [m] a plane with the whole CAD on one side
+                                           ///< (within this) is a support, not a fin
+  double alpha = 0;                 ///< [m] alpha-shape (rolling circle) radius; 0: 1.5 ×
+                                    ///< spacing across lines
+  double inner_band = 0;            ///< [m] boundary points within threshold + this of the
+                                    ///< CAD are inner (on the casting); 0: 1.5 × spacing across lines
+  double path_voxel = 0.4e-3;       ///< [m] improved voxel grid over the snapped path points
+  double gap = 0;                   ///< [m] polylines split at gaps longer than this; 0:
+                                    ///< max(4 × path_voxel, 4 × spacing across)
+  int smoothing = 3;                ///< moving-average half window along polylines [points]
+  bool mid_plane = true;            ///< shift the path from the fin's visible face to its
+                                    ///< mid-plane (half the thickness seen at the fin's edge)
+};
+
+/// One flash region (a fin or part of one).
+struct FlashRegion {
+  std::vector<std::uint32_t> points;  ///< indices into the input scan
+  Vec3 centroid_C = Vec3::Zero();     ///< [m] in the casting frame {C}
+  Vec3 normal_C = Vec3::UnitZ();      ///< local fin plane normal (towards the scanner)
+  double extent_major = 0, extent_minor = 0;  ///< [m] size within the fin plane
+  double max_height = 0;              ///< [m] largest distance of its points to the CAD
+  double thickness = 0;               ///< [m] estimated at the fin's edge (0: not seen)
+  int boundary_points = 0;            ///< alpha-shape boundary points
+  int inner_points = 0;               ///< of which on the casting (inner boundary)
+};
+
+/// One ordered grinding line on the CAD surface.
+struct FlashPath {
+  int region = -1;
+  std::vector<Vec3> points_C;   ///< [m] ordered, on the nominal surface, {C}
+  std::vector<Vec3> normals_C;  ///< outward CAD surface normal at each point
+  Vec3 fin_normal_C = Vec3::UnitZ();  ///< the region's fin plane normal
+  bool closed = false;          ///< a closed loop (the last point connects to the first)
+  double length() const;        ///< [m] (including the closing segment)
+};
+
+struct DetectionResult {
+  bool ran = false;                 ///< false: bad input, see message
+  std::string message;
+  std::vector<std::uint8_t> labels; ///< DetectLabel per input point
+  std::vector<FlashRegion> regions;
+  std::vector<FlashPath> paths;     ///< empty: nothing to grind
+  double noise_sigma = 0;           ///< [m] used (given or estimated)
+  double threshold = 0;             ///< [m] flash candidate distance
+  double spacing = 0;               ///< [m] median nearest-neighbour spacing of the candidates
+  double spacing_across = 0;        ///< [m] median spacing across scan lines (nearest
+                                    ///< neighbour off the line to the nearest one); sets the
+                                    ///< clustering, alpha, band and gap scales
+  std::size_t cropped_points = 0;   ///< points inside the grown CAD box
+  std::size_t candidate_points = 0; ///< off the CAD by more than the threshold
+  std::size_t support_points = 0;   ///< candidates removed as support planes
+  double time_s = 0;                ///< wall time
+};
+
+/// Detects flashes in `scan_M` (points in the scanner frame {M}) given the CAD model in {C}
+/// and the estimated pose X_CM (maps scan points into {C}).
+/// @throws ArgumentError for an empty scan, NaN/inf points, a pose that is not rigid,
+/// impossible parameters, or a scan and CAD model whose sizes differ by units (no point near
+/// the CAD, or extents differing by more than 50×).
+DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, const Pose& X_CM,
+                             const DetectionParams& params = {});
+
+/// Orders unordered points of one curve into polylines: links closer than `gap` are kept
+/// (Euclidean minimum spanning tree), each component becomes the longest path through its
+/// tree; `closed` when it is longer than 4 × gap and its ends are within `gap`, or it turns
+/// a full circle with its ends closer than a quarter of its length (a partly hidden loop).
+struct Polyline {
+  std::vector<Vec3> points;
+  std::vector<int> source;  ///< index of each point in the input
+  bool closed = false;
+};
+std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double gap);
+
+/// 2-D alpha shape (rolling circle of radius alpha): flags of the points a circle of that
+/// radius touches with no other point inside. `uv` holds the points in the fin plane [m].
+std::vector<bool> alpha_boundary(const std::vector<Eigen::Vector2d>& uv, double alpha,
+                                 const std::vector<bool>& test_only = {});
+
+}  // namespace flashtwin::perception

@@ -1,0 +1,699 @@
+#include "flashtwin/perception/flash_detection.hpp"
+
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <numeric>
+#include <queue>
+#include <sstream>
+
+#include <spdlog/spdlog.h>
+
+#include "flashtwin/core/errors.hpp"
+#include "flashtwin/core/random.hpp"
+#include "flashtwin/perception/preprocess.hpp"
+#include "kdtree.hpp"
+
+namespace flashtwin::perception {
+
+double FlashPath::length() const {
+  double L = 0;
+  for (std::size_t i = 1; i < points_C.size(); ++i) L += (points_C[i] - points_C[i - 1]).norm();
+  if (closed && points_C.size() > 2) L += (points_C.front() - points_C.back()).norm();
+  return L;
+}
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  const auto k = static_cast<std::size_t>(std::clamp(q, 0.0, 1.0) * (v.size() - 1));
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
+  return v[k];
+}
+
+void check_params(const DetectionParams& p) {
+  auto bad = [](const char* field, const char* expected, double got) {
+    std::ostringstream os;
+    os << "detection parameter '" << field << "': expected " << expected << ", got " << got;
+    throw ArgumentError(os.str());
+  };
+  if (!(p.crop_margin >= 0 && p.crop_margin < 1)) bad("crop_margin", "[0, 1) m", p.crop_margin);
+  if (!(p.noise_sigma < 0.01) || std::isnan(p.noise_sigma))
+    bad("noise_sigma", "< 0.01 m (negative: estimate)", p.noise_sigma);
+  if (!(p.threshold_sigmas > 0)) bad("threshold_sigmas", "> 0", p.threshold_sigmas);
+  if (!(p.min_threshold > 0 && p.max_threshold >= p.min_threshold))
+    bad("min_threshold/max_threshold", "0 < min <= max", p.min_threshold);
+  if (!(p.cluster_tolerance >= 0)) bad("cluster_tolerance", ">= 0 m", p.cluster_tolerance);
+  if (p.min_region_points < 3) bad("min_region_points", ">= 3", p.min_region_points);
+  if (!(p.support_distance > 0)) bad("support_distance", "> 0 m", p.support_distance);
+  if (!(p.alpha >= 0)) bad("alpha", ">= 0 m", p.alpha);
+  if (!(p.inner_band >= 0)) bad("inner_band", ">= 0 m", p.inner_band);
+  if (!(p.path_voxel > 0)) bad("path_voxel", "> 0 m", p.path_voxel);
+  if (!(p.gap >= 0)) bad("gap", ">= 0 m", p.gap);
+  if (p.smoothing < 0) bad("smoothing", ">= 0", p.smoothing);
+}
+
+struct Plane {
+  Vec3 n = Vec3::UnitZ();
+  double d = 0;  // n·p + d = 0
+  double dist(const Vec3& p) const { return n.dot(p) + d; }
+};
+
+// Least-squares plane (PCA) of a point set: normal = smallest eigenvector.
+Plane fit_plane(const std::vector<Vec3>& pts, Vec3* eigenvalues = nullptr,
+                Mat3* axes = nullptr) {
+  Vec3 c = Vec3::Zero();
+  for (const auto& p : pts) c += p;
+  c /= static_cast<double>(std::max<std::size_t>(1, pts.size()));
+  Mat3 C = Mat3::Zero();
+  for (const auto& p : pts) C += (p - c) * (p - c).transpose();
+  Eigen::SelfAdjointEigenSolver<Mat3> es(C);
+  Plane pl;
+  pl.n = es.eigenvectors().col(0).normalized();
+  pl.d = -pl.n.dot(c);
+  if (eigenvalues) *eigenvalues = es.eigenvalues() / std::max<std::size_t>(1, pts.size());
+  if (axes) *axes = es.eigenvectors();
+  return pl;
+}
+
+}  // namespace
+
+std::vector<bool> alpha_boundary(const std::vector<Eigen::Vector2d>& uv, double alpha,
+                                 const std::vector<bool>& test_only) {
+  FT_ASSERT(alpha > 0);
+  std::vector<bool> boundary(uv.size(), false);
+  if (uv.size() < 3) {
+    std::fill(boundary.begin(), boundary.end(), true);
+    return boundary;
+  }
+  std::vector<Eigen::Vector3f> pts(uv.size());
+  for (std::size_t i = 0; i < uv.size(); ++i)
+    pts[i] = Eigen::Vector3f(static_cast<float>(uv[i].x()), static_cast<float>(uv[i].y()), 0.f);
+  detail::KdTree tree(pts);
+  const double a2 = alpha * alpha;
+  const double inside2 = a2 * (1 - 1e-6);
+  std::vector<std::pair<std::uint32_t, float>> nb;
+  for (std::size_t i = 0; i < uv.size(); ++i) {
+    if (!test_only.empty() && !test_only[i]) continue;
+    tree.radius(pts[i], static_cast<float>(2 * alpha), nb);
+    if (nb.size() <= 1) {
+      boundary[i] = true;  // isolated: its own boundary
+      continue;
+    }
+    const Eigen::Vector2d p = uv[i];
+    // Rolling circle: a circle of radius alpha through p and a neighbour q with no other
+    // point inside means p lies on the alpha shape's boundary.
+    for (const auto& [j, d2] : nb) {
+      if (j == i) continue;
+      const Eigen::Vector2d q = uv[j];
+      const Eigen::Vector2d m = 0.5 * (p + q);
+      const Eigen::Vector2d pq = q - p;
+      const double half2 = 0.25 * pq.squaredNorm();
+      if (half2 <= 0 || half2 > a2) continue;
+      const double h = std::sqrt(a2 - half2);
+      const Eigen::Vector2d perp = Eigen::Vector2d(-pq.y(), pq.x()).normalized();
+      for (int side = -1; side <= 1 && !boundary[i]; side += 2) {
+        const Eigen::Vector2d c = m + side * h * perp;
+        bool empty = true;
+        for (const auto& [k, dk] : nb) {
+          if (k == i || k == j) continue;
+          if ((uv[k] - c).squaredNorm() < inside2) {
+            empty = false;
+            break;
+          }
+        }
+        if (empty) boundary[i] = true;
+      }
+      if (boundary[i]) break;
+    }
+  }
+  return boundary;
+}
+
+std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double gap) {
+  FT_ASSERT(gap > 0);
+  const std::size_t n = points.size();
+  std::vector<Polyline> out;
+  if (n == 0) return out;
+  std::vector<Eigen::Vector3f> pf(n);
+  for (std::size_t i = 0; i < n; ++i) pf[i] = points[i].cast<float>();
+  detail::KdTree tree(pf);
+  // Candidate edges: up to 10 nearest neighbours within the gap; Kruskal builds the Euclidean
+  // minimum spanning forest (ties broken by index: deterministic).
+  struct Edge {
+    float w;
+    std::uint32_t a, b;
+  };
+  std::vector<Edge> edges;
+  const std::size_t K = std::min<std::size_t>(11, n);
+  std::vector<std::uint32_t> idx(K);
+  std::vector<float> d2(K);
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::size_t k = tree.knn(pf[i], K, idx.data(), d2.data());
+    for (std::size_t t = 0; t < k; ++t)
+      if (idx[t] > i && d2[t] <= gap * gap) edges.push_back({d2[t], static_cast<std::uint32_t>(i), idx[t]});
+  }
+  std::sort(edges.begin(), edges.end(), [](const Edge& x, const Edge& y) {
+    return x.w != y.w ? x.w < y.w : (x.a != y.a ? x.a < y.a : x.b < y.b);
+  });
+  std::vector<std::uint32_t> parent(n);
+  std::iota(parent.begin(), parent.end(), 0u);
+  auto find = [&](std::uint32_t x) {
+    while (parent[x] != x) x = parent[x] = parent[parent[x]];
+    return x;
+  };
+  std::vector<std::vector<std::uint32_t>> adj(n);
+  for (const auto& e : edges) {
+    const auto ra = find(e.a), rb = find(e.b);
+    if (ra == rb) continue;
+    parent[ra] = rb;
+    adj[e.a].push_back(e.b);
+    adj[e.b].push_back(e.a);
+  }
+  // Farthest node (by path length along the tree) from a start node.
+  std::vector<double> dist(n, -1);
+  std::vector<std::int64_t> from(n, -1);
+  auto farthest = [&](std::uint32_t s, std::vector<std::uint32_t>& comp) {
+    comp.clear();
+    std::vector<std::uint32_t> stack{s};
+    dist[s] = 0;
+    from[s] = -1;
+    std::uint32_t best = s;
+    while (!stack.empty()) {
+      const auto u = stack.back();
+      stack.pop_back();
+      comp.push_back(u);
+      if (dist[u] > dist[best]) best = u;
+      for (auto v : adj[u])
+        if (dist[v] < 0) {
+          dist[v] = dist[u] + (points[u] - points[v]).norm();
+          from[v] = u;
+          stack.push_back(v);
+        }
+    }
+    return best;
+  };
+  std::vector<bool> done(n, false);
+  std::vector<std::uint32_t> comp;
+  for (std::size_t s = 0; s < n; ++s) {
+    if (done[s]) continue;
+    const auto a = farthest(static_cast<std::uint32_t>(s), comp);
+    for (auto u : comp) {
+      done[u] = true;
+      dist[u] = -1;
+    }
+    const auto b = farthest(a, comp);
+    Polyline pl;
+    for (std::int64_t u = b; u >= 0; u = from[u]) {
+      pl.points.push_back(points[static_cast<std::size_t>(u)]);
+      pl.source.push_back(static_cast<int>(u));
+    }
+    for (auto u : comp) dist[u] = -1;
+    double len = 0;
+    for (std::size_t i = 1; i < pl.points.size(); ++i) len += (pl.points[i] - pl.points[i - 1]).norm();
+    // Closed: the ends meet, or the curve turns a full circle (about its best-fit plane's
+    // normal) and its ends are close compared with its length (a loop seen with a gap, e.g. a
+    // hole flash partly hidden from the scanner).
+    const double ends = (pl.points.front() - pl.points.back()).norm();
+    double turn = 0;
+    if (pl.points.size() > 3) {
+      Vec3 ev;
+      Mat3 ax;
+      fit_plane(pl.points, &ev, &ax);
+      const Vec3 nrm = ax.col(0);
+      for (std::size_t i = 2; i < pl.points.size(); ++i) {
+        const Vec3 u = pl.points[i - 1] - pl.points[i - 2], v = pl.points[i] - pl.points[i - 1];
+        turn += std::atan2(nrm.dot(u.cross(v)), u.dot(v));
+      }
+    }
+    pl.closed = pl.points.size() > 3 && len > 4 * gap &&
+                (ends <= gap || (std::abs(turn) > 1.5 * M_PI && ends < 0.25 * len));
+    out.push_back(std::move(pl));
+  }
+  return out;
+}
+
+DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, const Pose& X_CM,
+                             const DetectionParams& params) {
+  const auto t0 = Clock::now();
+  check_params(params);
+  if (scan_M.empty()) throw ArgumentError("scan: expected at least one point, got an empty cloud");
+  for (std::size_t i = 0; i < scan_M.size(); ++i)
+    if (!scan_M.points[i].allFinite())
+      throw ArgumentError("scan: expected finite coordinates, got NaN/inf at point " +
+                          std::to_string(i));
+  const Mat3 R = X_CM.linear();
+  if (!X_CM.matrix().allFinite() || (R.transpose() * R - Mat3::Identity()).norm() > 1e-6 ||
+      std::abs(R.determinant() - 1) > 1e-6)
+    throw ArgumentError("pose X_CM: expected a rigid transform (orthonormal rotation, det +1)");
+  const TriangleMesh& cad = cad_C.mesh();
+  if (cad.triangles.empty()) throw ArgumentError("CAD model: expected triangles, got none");
+  const auto& P = params;
+
+  DetectionResult res;
+  const std::size_t n = scan_M.size();
+  res.labels.assign(n, kDetectIgnored);
+  Vec3 lo, hi;
+  cad.bounds(lo, hi);
+  const double cad_diag = (hi - lo).norm();
+  const Eigen::AlignedBox3d box(lo - Vec3::Constant(P.crop_margin), hi + Vec3::Constant(P.crop_margin));
+
+  // Into {C}; crop to the grown CAD box (drops most of the table and fixture).
+  std::vector<std::uint32_t> crop;
+  std::vector<Vec3> pc;
+  Eigen::AlignedBox3d scan_box;
+  for (std::size_t i = 0; i < n; ++i) {
+    const Vec3 p = X_CM * scan_M.points[i].cast<double>();
+    scan_box.extend(p);
+    if (box.contains(p)) {
+      crop.push_back(static_cast<std::uint32_t>(i));
+      pc.push_back(p);
+    }
+  }
+  const double scan_diag = scan_box.diagonal().norm();
+  if (scan_diag > 50 * cad_diag || scan_diag < cad_diag / 50 || crop.size() < 10) {
+    std::ostringstream os;
+    os << "scan and CAD model do not match: the scan spans " << scan_diag << " m, the CAD model "
+       << cad_diag << " m, and " << crop.size()
+       << " scan points lie near the CAD model (expected both in metres and the pose mapping the "
+          "scan onto the model)";
+    throw ArgumentError(os.str());
+  }
+  res.cropped_points = crop.size();
+
+  // Distance of every kept point to the CAD surface (true point-to-triangle distance, BVH),
+  // searched only within `far`: beyond it a point is a candidate whatever its exact distance.
+  const double far = 2 * P.max_threshold;
+  const std::size_t m = crop.size();
+  std::vector<double> dist(m);
+  std::vector<int> tri(m);
+#pragma omp parallel for schedule(dynamic, 4096) if (m >= 8192)
+  for (std::ptrdiff_t k = 0; k < static_cast<std::ptrdiff_t>(m); ++k) {
+    const auto cp = cad_C.closest(pc[static_cast<std::size_t>(k)], far);
+    dist[static_cast<std::size_t>(k)] = cp.triangle < 0 ? far : cp.distance;
+    tri[static_cast<std::size_t>(k)] = cp.triangle;
+  }
+
+  // Noise: points on the surface have |distance| ~ |N(0, σ)|, so σ ≈ median / 0.6745 over the
+  // points near the surface (flash points are a minority and sit far off).
+  if (P.noise_sigma > 0) {
+    res.noise_sigma = P.noise_sigma;
+  } else {
+    std::vector<double> near;
+    near.reserve(m);
+    for (std::size_t k = 0; k < m; ++k)
+      if (dist[k] < P.max_threshold) near.push_back(dist[k]);
+    res.noise_sigma = near.empty() ? P.min_threshold : percentile(near, 0.5) / 0.6745;
+  }
+  res.threshold = std::clamp(P.threshold_sigmas * res.noise_sigma, P.min_threshold, P.max_threshold);
+
+  std::vector<std::uint32_t> cand;  // indices into crop
+  for (std::size_t k = 0; k < m; ++k) {
+    if (dist[k] > res.threshold) cand.push_back(static_cast<std::uint32_t>(k));
+    else res.labels[crop[k]] = kDetectBody;
+  }
+  res.candidate_points = cand.size();
+  if (cand.size() < static_cast<std::size_t>(P.min_region_points)) {
+    res.ran = true;
+    res.message = "nothing to grind: no point lies off the CAD surface";
+    res.time_s = std::chrono::duration<double>(Clock::now() - t0).count();
+    return res;
+  }
+
+  // Median spacing of the candidates (sets the clustering, alpha and gap scales).
+  std::vector<Eigen::Vector3f> cf(cand.size());
+  for (std::size_t c = 0; c < cand.size(); ++c) cf[c] = pc[cand[c]].cast<float>();
+  {
+    detail::KdTree tree(cf);
+    // Line scanners sample densely along a profile and sparsely across profiles: besides the
+    // nearest-neighbour spacing, the spacing across (nearest neighbour off the line through
+    // the nearest one) sets the scales that must bridge profiles.
+    std::vector<double> sp, sp_cross;
+    const std::size_t step = std::max<std::size_t>(1, cand.size() / 2000);
+    constexpr std::size_t K = 32;
+    std::uint32_t id[K];
+    float d2[K];
+    for (std::size_t c = 0; c < cand.size(); c += step) {
+      const std::size_t k = tree.knn(cf[c], K, id, d2);
+      if (k < 2) continue;
+      sp.push_back(std::sqrt(static_cast<double>(d2[1])));
+      const Eigen::Vector3f d1 = (cf[id[1]] - cf[c]).normalized();
+      for (std::size_t t = 2; t < k; ++t) {
+        const Eigen::Vector3f dq = cf[id[t]] - cf[c];
+        if (std::abs(dq.normalized().dot(d1)) < 0.7071f) {
+          sp_cross.push_back(std::sqrt(static_cast<double>(d2[t])));
+          break;
+        }
+      }
+    }
+    res.spacing = std::max(1e-5, percentile(sp, 0.5));
+    res.spacing_across = std::max(res.spacing, percentile(sp_cross, 0.5));
+  }
+  const double spacing = res.spacing_across;
+
+  // Support planes (table, fixture faces): planes through many candidates with the whole CAD
+  // model on one side. A fin's plane cuts through the part, so it is never taken for one.
+  std::vector<bool> alive(cand.size(), true);
+  {
+    Rng rng(12345);
+    std::vector<bool> excluded(cand.size(), false);
+    for (int plane_no = 0; plane_no < 6; ++plane_no) {
+      std::vector<std::uint32_t> pool;
+      for (std::size_t c = 0; c < cand.size(); ++c)
+        if (alive[c] && !excluded[c]) pool.push_back(static_cast<std::uint32_t>(c));
+      if (pool.size() < static_cast<std::size_t>(P.min_region_points)) break;
+      const std::size_t probe_step = std::max<std::size_t>(1, pool.size() / 4000);
+      Plane best;
+      std::size_t best_count = 0;
+      for (int it = 0; it < 300; ++it) {
+        const Vec3 a = pc[cand[pool[static_cast<std::size_t>(rng.uniform() * pool.size())]]];
+        const Vec3 b = pc[cand[pool[static_cast<std::size_t>(rng.uniform() * pool.size())]]];
+        const Vec3 c = pc[cand[pool[static_cast<std::size_t>(rng.uniform() * pool.size())]]];
+        Vec3 nn = (b - a).cross(c - a);
+        if (nn.norm() < 1e-12) continue;
+        Plane pl{nn.normalized(), 0};
+        pl.d = -pl.n.dot(a);
+        std::size_t count = 0;
+        for (std::size_t q = 0; q < pool.size(); q += probe_step)
+          count += std::abs(pl.dist(pc[cand[pool[q]]])) < P.support_distance;
+        if (count > best_count) {
+          best_count = count;
+          best = pl;
+        }
+      }
+      std::vector<std::uint32_t> inl;
+      for (auto q : pool)
+        if (std::abs(best.dist(pc[cand[q]])) < P.support_distance) inl.push_back(q);
+      if (inl.size() < static_cast<std::size_t>(P.min_region_points)) break;
+      std::vector<Vec3> ip;
+      for (auto q : inl) ip.push_back(pc[cand[q]]);
+      best = fit_plane(ip);
+      double smin = 1e300, smax = -1e300;
+      for (const auto& v : cad.vertices) {
+        const double s = best.dist(v);
+        smin = std::min(smin, s);
+        smax = std::max(smax, s);
+      }
+      const bool support = smin > -P.support_side_tolerance || smax < P.support_side_tolerance;
+      spdlog::debug("detect: plane {} n=({:.3f},{:.3f},{:.3f}) d={:.4f}: {} inliers, CAD side [{:.4f}, {:.4f}] -> {}",
+                    plane_no, best.n.x(), best.n.y(), best.n.z(), best.d, inl.size(), smin, smax,
+                    support ? "support" : "kept");
+      if (support) {
+        // Drop the plane's points and anything behind it (away from the part).
+        const double side = smin > -P.support_side_tolerance ? 1.0 : -1.0;
+        for (std::size_t c = 0; c < cand.size(); ++c) {
+          if (!alive[c]) continue;
+          const double s = side * best.dist(pc[cand[c]]);
+          if (s < P.support_distance) {
+            alive[c] = false;
+            ++res.support_points;
+          }
+        }
+      } else {
+        for (auto q : inl) excluded[q] = true;
+      }
+    }
+  }
+
+  spdlog::debug("detect: {} cropped, {} candidates, threshold {:.4f} mm, spacing {:.3f}/{:.3f} mm, {} on supports",
+                m, cand.size(), res.threshold * 1e3, res.spacing * 1e3, spacing * 1e3, res.support_points);
+  // Euclidean clustering of the surviving candidates.
+  const double tol = P.cluster_tolerance > 0 ? P.cluster_tolerance : 3 * spacing;
+  std::vector<std::uint32_t> live;
+  std::vector<Eigen::Vector3f> lf;
+  for (std::size_t c = 0; c < cand.size(); ++c)
+    if (alive[c]) {
+      live.push_back(static_cast<std::uint32_t>(c));
+      lf.push_back(cf[c]);
+    }
+  detail::KdTree ltree(lf);
+  std::vector<int> cluster(live.size(), -1);
+  std::vector<std::vector<std::uint32_t>> clusters;  // indices into live
+  {
+    std::vector<std::pair<std::uint32_t, float>> nb;
+    for (std::size_t s = 0; s < live.size(); ++s) {
+      if (cluster[s] >= 0) continue;
+      const int id = static_cast<int>(clusters.size());
+      clusters.emplace_back();
+      auto& cl = clusters.back();
+      cl.push_back(static_cast<std::uint32_t>(s));
+      cluster[s] = id;
+      for (std::size_t q = 0; q < cl.size(); ++q) {
+        ltree.radius(lf[cl[q]], static_cast<float>(tol), nb);
+        for (const auto& [j, d2] : nb)
+          if (cluster[j] < 0) {
+            cluster[j] = id;
+            cl.push_back(j);
+          }
+      }
+    }
+  }
+
+  const double band = P.inner_band > 0 ? P.inner_band : 1.5 * spacing;
+  const double alpha = P.alpha > 0 ? P.alpha : 1.5 * spacing;
+  const double gap = P.gap > 0 ? P.gap : std::max(4 * P.path_voxel, 4 * spacing);
+  const double inner_limit = res.threshold + band;
+
+  // Per-region data kept between the passes below.
+  struct RegionWork {
+    std::vector<Vec3> inner, inner_n;  // snapped inner-boundary points and CAD normals
+    Vec3 w = Vec3::UnitZ();            // height direction along the wall
+    double top = 0;                    // height of the visible face at the root
+    double mid = 0;                    // height of the mid-plane
+    bool resolved = false;             // mid-plane seen at the fin's edge
+    bool shift = false;
+  };
+  std::vector<RegionWork> work;
+  for (auto& cl : clusters) {
+    if (cl.size() < static_cast<std::size_t>(P.min_region_points)) continue;
+    std::sort(cl.begin(), cl.end());
+    std::vector<Vec3> pts;
+    pts.reserve(cl.size());
+    std::size_t touching = 0;
+    double hmax = 0;
+    for (auto s : cl) {
+      const auto k = cand[live[s]];
+      pts.push_back(pc[k]);
+      touching += dist[k] < inner_limit;
+      hmax = std::max(hmax, dist[k]);
+    }
+    // A flash grows out of the casting: a cluster that never comes near the surface is
+    // something else (fixture, robot, stray points).
+    if (touching < 3) {
+      spdlog::debug("detect: cluster of {} points never near the CAD: dropped", cl.size());
+      continue;
+    }
+    Vec3 ev;
+    Mat3 axes;
+    const Plane fin = fit_plane(pts, &ev, &axes);
+    FlashRegion reg;
+    reg.points.reserve(cl.size());
+    for (auto s : cl) reg.points.push_back(crop[cand[live[s]]]);
+    reg.centroid_C = -fin.d * fin.n;
+    {
+      Vec3 c = Vec3::Zero();
+      for (const auto& p : pts) c += p;
+      reg.centroid_C = c / static_cast<double>(pts.size());
+    }
+    // The fin normal faces the scanner (the origin of {M}).
+    reg.normal_C = fin.n;
+    if (reg.normal_C.dot(X_CM.translation() - reg.centroid_C) < 0) reg.normal_C = -reg.normal_C;
+    const Vec3 e1 = axes.col(2), e2 = axes.col(1);
+    double u0 = 1e300, u1 = -1e300, v0 = 1e300, v1 = -1e300;
+    std::vector<Eigen::Vector2d> uv(pts.size());
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      uv[i] = Eigen::Vector2d(e1.dot(pts[i] - reg.centroid_C), e2.dot(pts[i] - reg.centroid_C));
+      u0 = std::min(u0, uv[i].x());
+      u1 = std::max(u1, uv[i].x());
+      v0 = std::min(v0, uv[i].y());
+      v1 = std::max(v1, uv[i].y());
+    }
+    reg.extent_major = u1 - u0;
+    reg.extent_minor = v1 - v0;
+    reg.max_height = hmax;
+
+    // Alpha-shape boundary. Only the points near the casting can be on the inner boundary,
+    // so the rolling circle is tried there (the outer boundary is not needed for the path).
+    std::vector<bool> test(pts.size());
+    for (std::size_t i = 0; i < pts.size(); ++i) test[i] = dist[cand[live[cl[i]]]] < inner_limit;
+    const auto bnd = alpha_boundary(uv, alpha, test);
+    std::vector<Vec3> inner;
+    std::vector<Vec3> inner_n;
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      if (!bnd[i]) continue;
+      ++reg.boundary_points;
+      // Snap onto the CAD surface: the path must not carry the scanner noise.
+      const auto cp = cad_C.closest(pts[i], inner_limit * 1.5);
+      if (cp.triangle < 0) continue;
+      ++reg.inner_points;
+      inner.push_back(cp.point);
+      inner_n.push_back(cad.triangle_normal(static_cast<std::size_t>(cp.triangle)));
+    }
+    spdlog::debug("detect: region of {} points, {} near the CAD, {} boundary, {} inner", cl.size(),
+                  touching, reg.boundary_points, inner.size());
+    if (inner.size() < 3) continue;
+
+    // The scanner sees the fin's upper face; the root lies on its mid-plane. Where the fin's
+    // edge (its outer half) shows its thickness, the mid-height there, measured along the
+    // wall, is the fin's mid-plane (a symmetric fin, the parting plane across the wall).
+    // Height direction: the fin normal made perpendicular to the mean wall normal (walls
+    // around a loop average out: then the fin normal itself).
+    Vec3 nw = Vec3::Zero();
+    for (const auto& v : inner_n) nw += v;
+    RegionWork wk;
+    wk.w = reg.normal_C;
+    if (nw.norm() > 0.5 * static_cast<double>(inner_n.size())) {
+      nw.normalize();
+      const Vec3 w = reg.normal_C - reg.normal_C.dot(nw) * nw;
+      if (w.norm() > 0.5) wk.w = w.normalized();
+    }
+    std::vector<double> h_outer, h_inner;
+    for (std::size_t i = 0; i < pts.size(); ++i)
+      if (dist[cand[live[cl[i]]]] > 0.5 * hmax) h_outer.push_back(wk.w.dot(pts[i]));
+    for (const auto& p : inner) h_inner.push_back(wk.w.dot(p));
+    wk.top = percentile(h_inner, 0.5);
+    if (h_outer.size() >= 20) {
+      // The top face is the bulk (its median is its height); the lowest edge points mark the
+      // fin's bottom.
+      const double top = percentile(h_outer, 0.5);
+      const double bottom = percentile(h_outer, 0.01);
+      reg.thickness = std::max(0.0, top - bottom);
+      if (reg.thickness > 3 * res.noise_sigma) {
+        wk.resolved = true;
+        wk.mid = 0.5 * (top + bottom);
+      }
+    }
+    wk.inner = std::move(inner);
+    wk.inner_n = std::move(inner_n);
+    for (auto idx : reg.points) res.labels[idx] = kDetectFlash;
+    res.regions.push_back(std::move(reg));
+    work.push_back(std::move(wk));
+  }
+
+  // One parting plane: a fin whose edge is too thin to resolve takes the mid-plane of the
+  // resolved fins parallel to it and within 2 mm of its face (castings part along one plane).
+  for (std::size_t r = 0; r < work.size(); ++r) {
+    auto& wk = work[r];
+    if (!P.mid_plane) {
+      wk.shift = false;
+      continue;
+    }
+    if (wk.resolved) {
+      wk.shift = true;
+      continue;
+    }
+    std::vector<double> mids;
+    for (std::size_t q = 0; q < work.size(); ++q) {
+      if (!work[q].resolved || work[q].w.dot(wk.w) < std::cos(5 * M_PI / 180)) continue;
+      // The other fin's mid height measured along this fin's direction at its own centroid.
+      const double m_other = work[q].mid;
+      if (std::abs(m_other - wk.top) < 2e-3) mids.push_back(m_other);
+    }
+    if (!mids.empty()) {
+      wk.mid = percentile(mids, 0.5);
+      wk.shift = wk.mid < wk.top;  // never above the visible face
+      res.regions[r].thickness = 2 * (wk.top - wk.mid);
+    }
+  }
+
+  for (std::size_t r = 0; r < work.size(); ++r) {
+    const auto& wk = work[r];
+    const auto& reg = res.regions[r];
+    auto to_mid = [&](Vec3 p) {
+      if (wk.shift) p += (wk.mid - wk.w.dot(p)) * wk.w;
+      return p;
+    };
+    PointCloud ic;
+    for (std::size_t i = 0; i < wk.inner.size(); ++i) {
+      ic.points.push_back(to_mid(wk.inner[i]).cast<float>());
+      ic.normals.push_back(wk.inner_n[i].cast<float>());
+    }
+    // Improved voxel grid: one original point per voxel, the one nearest its centroid.
+    const PointCloud thin = voxel_downsample_nearest(ic, P.path_voxel);
+    std::vector<Vec3> tp(thin.size());
+    for (std::size_t i = 0; i < thin.size(); ++i) tp[i] = thin.points[i].cast<double>();
+    // The boundary is a band a few points wide: pull each point onto the line fitted to its
+    // neighbours (twice) so the band becomes one curve before it is ordered.
+    const double reach = std::max(2 * P.path_voxel, 2 * spacing);
+    for (int pass = 0; pass < 2 && tp.size() > 3; ++pass) {
+      std::vector<Eigen::Vector3f> tf(tp.size());
+      for (std::size_t i = 0; i < tp.size(); ++i) tf[i] = tp[i].cast<float>();
+      detail::KdTree tt(tf);
+      std::vector<Vec3> moved(tp.size());
+      std::vector<std::pair<std::uint32_t, float>> nb;
+      for (std::size_t i = 0; i < tp.size(); ++i) {
+        tt.radius(tf[i], static_cast<float>(reach), nb);
+        if (nb.size() < 3) {
+          moved[i] = tp[i];
+          continue;
+        }
+        std::vector<Vec3> loc;
+        for (const auto& e : nb) loc.push_back(tp[e.first]);
+        Vec3 ev;
+        Mat3 ax;
+        fit_plane(loc, &ev, &ax);
+        Vec3 c = Vec3::Zero();
+        for (const auto& q : loc) c += q;
+        c /= static_cast<double>(loc.size());
+        const Vec3 dir = ax.col(2);
+        moved[i] = c + dir.dot(tp[i] - c) * dir;
+      }
+      tp = std::move(moved);
+    }
+    {
+      PointCloud again;
+      for (const auto& q : tp) again.points.push_back(q.cast<float>());
+      const PointCloud t2 = voxel_downsample_nearest(again, P.path_voxel);
+      tp.resize(t2.size());
+      for (std::size_t i = 0; i < t2.size(); ++i) tp[i] = t2.points[i].cast<double>();
+    }
+    for (auto& pl : order_polylines(tp, gap)) {
+      if (pl.points.size() < 3) continue;
+      FlashPath path;
+      path.region = static_cast<int>(r);
+      path.closed = pl.closed;
+      path.fin_normal_C = reg.normal_C;
+      // Moving average along the curve (wrapping for loops), then back onto the surface and
+      // back to the mid height.
+      const int N = static_cast<int>(pl.points.size());
+      for (int i = 0; i < N; ++i) {
+        Vec3 acc = Vec3::Zero();
+        int cnt = 0;
+        for (int k = -P.smoothing; k <= P.smoothing; ++k) {
+          int j = i + k;
+          if (path.closed) j = (j % N + N) % N;
+          else if (j < 0 || j >= N) continue;
+          acc += pl.points[static_cast<std::size_t>(j)];
+          ++cnt;
+        }
+        const auto cp = cad_C.closest(acc / cnt);
+        path.points_C.push_back(to_mid(cp.point));
+        path.normals_C.push_back(cad.triangle_normal(static_cast<std::size_t>(std::max(0, cp.triangle))));
+      }
+      // Direction: with the fin normal up, walk so that tangent · (n_fin × n_surface) > 0.
+      double dir = 0;
+      for (std::size_t i = 1; i < path.points_C.size(); ++i)
+        dir += (path.points_C[i] - path.points_C[i - 1]).dot(reg.normal_C.cross(path.normals_C[i]));
+      if (dir < 0) {
+        std::reverse(path.points_C.begin(), path.points_C.end());
+        std::reverse(path.normals_C.begin(), path.normals_C.end());
+      }
+      res.paths.push_back(std::move(path));
+    }
+  }
+  res.ran = true;
+  if (res.paths.empty()) res.message = "nothing to grind: no flash region found";
+  else {
+    std::ostringstream os;
+    os << res.regions.size() << " flash region(s), " << res.paths.size() << " path(s)";
+    res.message = os.str();
+  }
+  res.time_s = std::chrono::duration<double>(Clock::now() - t0).count();
+  return res;
+}
+
+}  // namespace flashtwin::perception

@@ -1,0 +1,48 @@
+#pragma once
+// The scenario pipeline (`flashtwin run`): cell → scan → registration → flash detection →
+// (planning → execution, when enabled) → scoring against ground truth → metrics.json.
+// Perception and planning only see what a real cell would give them (the scan, the CAD
+// model, the calibrated scanner pose); the ground truth is read by scoring alone.
+#include <functional>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+#include "flashtwin/perception/flash_detection.hpp"
+#include "flashtwin/perception/registration.hpp"
+#include "flashtwin/pipeline/scenario.hpp"
+
+namespace flashtwin::pipeline {
+
+struct RunOptions {
+  std::string out_dir;        ///< everything is written here ("" = nothing written)
+  bool write_scan = true;     ///< scan.ply (and the labelled scans)
+  int threads = 2;            ///< scanner threads
+  /// Stage progress callback (stage name, fraction of the run done); may be empty.
+  std::function<void(const std::string&, double)> progress;
+};
+
+/// What a run produced. `metrics` uses the flat dotted keys of DESIGN.md
+/// ("registration.rotation_error_deg", ...).
+struct RunResult {
+  nlohmann::ordered_json metrics;
+  bool refused = false;        ///< the pipeline refused (registration not confident, ...)
+  std::string verdict;         ///< one line: what happened
+  int exit_code = 0;           ///< 0 done, 1 refused/failed
+  perception::DetectionResult detection;
+  perception::RegistrationResult registration;
+};
+
+/// Runs the scenario end to end and writes metrics.json (and the other outputs) into
+/// options.out_dir. @throws InputError for bad scenario contents (missing meshes, ...).
+RunResult run_scenario(const Scenario& scenario, const RunOptions& options);
+
+/// Writes detected paths as JSON ({C}: points, normals, closed, region) and PLY (vertices +
+/// edges) next to each other: DIR/paths.json, DIR/paths.ply.
+void write_paths(const std::string& dir, const perception::DetectionResult& detection);
+
+/// Checks the scenario's `expect:` bounds against metrics; returns one line per violation.
+std::vector<std::string> check_expectations(const Scenario& scenario,
+                                            const nlohmann::ordered_json& metrics);
+
+}  // namespace flashtwin::pipeline

@@ -1,0 +1,271 @@
+#include "flashtwin/pipeline/run.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <iomanip>
+#include <unistd.h>
+#include <sstream>
+
+#include "flashtwin/core/errors.hpp"
+#include "flashtwin/core/io.hpp"
+#include "flashtwin/core/mesh_query.hpp"
+#include "flashtwin/pipeline/scoring.hpp"
+#include "flashtwin/sim/cell.hpp"
+#include "flashtwin/sim/scan_cell.hpp"
+
+namespace flashtwin::pipeline {
+
+namespace fs = std::filesystem;
+using json = nlohmann::ordered_json;
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double seconds_since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+// JSON has no inf/NaN: such values become null.
+json number(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
+
+
+void progress(const RunOptions& o, const std::string& stage, double f) {
+  if (o.progress) o.progress(stage, f);
+}
+
+}  // namespace
+
+void write_paths(const std::string& dir, const perception::DetectionResult& det) {
+  ensure_directory(dir);
+  json j;
+  j["frame"] = "C (casting)";
+  j["units"] = "m";
+  j["noise_sigma"] = det.noise_sigma;
+  j["threshold"] = det.threshold;
+  j["message"] = det.message;
+  json regions = json::array();
+  for (const auto& r : det.regions) {
+    regions.push_back({{"points", r.points.size()},
+                       {"centroid", {r.centroid_C.x(), r.centroid_C.y(), r.centroid_C.z()}},
+                       {"normal", {r.normal_C.x(), r.normal_C.y(), r.normal_C.z()}},
+                       {"extent_major", r.extent_major},
+                       {"extent_minor", r.extent_minor},
+                       {"max_height", r.max_height},
+                       {"thickness", r.thickness},
+                       {"boundary_points", r.boundary_points},
+                       {"inner_points", r.inner_points}});
+  }
+  j["regions"] = regions;
+  json paths = json::array();
+  std::ostringstream vert, edges;
+  std::size_t nv = 0, ne = 0;
+  for (const auto& p : det.paths) {
+    json pts = json::array(), nrm = json::array();
+    const std::size_t first = nv;
+    for (std::size_t i = 0; i < p.points_C.size(); ++i) {
+      const auto& a = p.points_C[i];
+      const auto& n = p.normals_C[i];
+      pts.push_back({a.x(), a.y(), a.z()});
+      nrm.push_back({n.x(), n.y(), n.z()});
+      vert << a.x() << ' ' << a.y() << ' ' << a.z() << ' ' << n.x() << ' ' << n.y() << ' ' << n.z()
+           << ' ' << p.region << '\n';
+      ++nv;
+      if (i > 0) {
+        edges << nv - 2 << ' ' << nv - 1 << '\n';
+        ++ne;
+      }
+    }
+    if (p.closed && p.points_C.size() > 2) {
+      edges << nv - 1 << ' ' << first << '\n';
+      ++ne;
+    }
+    paths.push_back({{"region", p.region},
+                     {"closed", p.closed},
+                     {"length", p.length()},
+                     {"fin_normal", {p.fin_normal_C.x(), p.fin_normal_C.y(), p.fin_normal_C.z()}},
+                     {"points", pts},
+                     {"normals", nrm}});
+  }
+  j["paths"] = paths;
+  write_text_file((fs::path(dir) / "paths.json").string(), j.dump(1) + "\n");
+  std::ostringstream ply;
+  ply << std::setprecision(9);
+  ply << "ply\nformat ascii 1.0\ncomment flashtwin grinding paths, frame {C}, metres\n"
+      << "element vertex " << nv
+      << "\nproperty double x\nproperty double y\nproperty double z\nproperty float nx\n"
+         "property float ny\nproperty float nz\nproperty int region\n"
+      << "element edge " << ne << "\nproperty int vertex1\nproperty int vertex2\nend_header\n"
+      << vert.str() << edges.str();
+  write_text_file((fs::path(dir) / "paths.ply").string(), ply.str());
+}
+
+std::vector<std::string> check_expectations(const Scenario& sc, const json& metrics) {
+  std::vector<std::string> bad;
+  for (const auto& e : sc.expect) {
+    if (!metrics.contains(e.key)) {
+      bad.push_back(e.key + ": expected by the scenario, missing from the metrics");
+      continue;
+    }
+    const auto& v = metrics[e.key];
+    std::ostringstream os;
+    if (e.is_flag) {
+      if (!v.is_boolean() || v.get<bool>() != e.flag) {
+        os << e.key << ": expected " << (e.flag ? "true" : "false") << ", got " << v.dump();
+        bad.push_back(os.str());
+      }
+    } else if (!v.is_number()) {
+      os << e.key << ": expected a number in [" << e.lo << ", " << e.hi << "], got " << v.dump();
+      bad.push_back(os.str());
+    } else {
+      const double x = v.get<double>();
+      if (!(x >= e.lo && x <= e.hi)) {
+        os << e.key << ": expected within [" << (e.lo < -1e299 ? std::string("-inf") : std::to_string(e.lo))
+           << ", " << (e.hi > 1e299 ? std::string("inf") : std::to_string(e.hi)) << "], got " << x;
+        bad.push_back(os.str());
+      }
+    }
+  }
+  return bad;
+}
+
+RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
+  const auto t_total = Clock::now();
+  RunResult out;
+  json& m = out.metrics;
+  const bool write = !opt.out_dir.empty();
+  const fs::path dir = write ? fs::path(opt.out_dir) : fs::path();
+  if (write) ensure_directory(dir.string());
+  m["scenario"] = sc.name;
+  m["seed"] = sc.seed;
+
+  // --- Cell and scan (the simulator).
+  progress(opt, "cell", 0.0);
+  const CellSetup setup = setup_cell(sc);
+  const fs::path cell_dir = write ? dir / "cell" : fs::temp_directory_path() /
+                                                       ("flashtwin_run_" + std::to_string(::getpid()));
+  const sim::CellFiles files = sim::write_cell(sc.robot, setup.spec, setup.casting, cell_dir.string());
+  m["casting.family"] = sim::to_string(sc.casting.family);
+  m["casting.flashes"] = setup.casting.fins.size();
+  m["casting.flash_volume_mm3"] = setup.casting.flash_volume() * 1e9;
+
+  progress(opt, "scan", 0.05);
+  const auto t_scan = Clock::now();
+  sim::ScanParams scan_params = sc.scan;
+  scan_params.threads = std::max(1, opt.threads);
+  const Pose X_WM_true = sim::perturb_pose(setup.spec.X_WM, sc.calibration_translation,
+                                           sc.calibration_rotation, sc.seed);
+  const sim::CellScan scan =
+      sim::scan_cell(files.mjcf, setup.casting, scan_params, setup.spec.X_WM, X_WM_true);
+  const double scan_s = seconds_since(t_scan);
+  const PointCloud& cloud_M = scan.result.cloud_M;
+  m["scan.points"] = cloud_M.size();
+  m["scan.rays_per_s"] = scan.result.rays_per_s();
+  if (write && opt.write_scan) {
+    PointCloud pts;
+    pts.points = cloud_M.points;
+    save_ply((dir / "scan.ply").string(), pts);
+    PointCloud labelled = pts;
+    labelled.labels = scan.result.truth;
+    save_ply((cell_dir / "truth" / "scan_labels.ply").string(), labelled);
+  }
+
+  // --- Perception: pose, then flashes. Inputs: the scan in {M}, the CAD model, X_WM as
+  // calibrated (nominal), never the truth.
+  progress(opt, "registration", 0.15);
+  const auto t_perc = Clock::now();
+  const auto target = perception::ModelTarget::from_mesh(setup.casting.nominal);
+  perception::RegistrationParams rp;
+  rp.remove_support_plane = true;
+  rp.viewpoint = Vec3::Zero();
+  out.registration = perception::register_scan(cloud_M, *target, rp);
+  const auto& reg = out.registration;
+  const Pose X_CM_est = reg.T_target_source;
+  // Truth: where {M} really is relative to {C} (the calibrated X_WM is what perception used;
+  // the pose error counts what registration got wrong about the casting in the cell).
+  const Pose X_CM_true = setup.spec.X_WC.inverse() * X_WM_true;
+  const Pose X_WC_est = setup.spec.X_WM * X_CM_est.inverse();
+  m["registration.confident"] = reg.confident;
+  m["registration.rotation_error_deg"] =
+      rotation_distance(X_WC_est.linear(), setup.spec.X_WC.linear()) * 180 / M_PI;
+  m["registration.translation_error_mm"] =
+      (X_WC_est.translation() - setup.spec.X_WC.translation()).norm() * 1000;
+  // The error that matters for grinding: how far points of the casting land from where they
+  // are (max over the CAD vertices), in the scanner frame.
+  double worst = 0;
+  for (const auto& v : setup.casting.nominal.vertices)
+    worst = std::max(worst, (X_CM_est * (X_CM_true.inverse() * v) - v).norm());
+  m["registration.surface_error_max_mm"] = worst * 1000;
+  m["registration.fitness"] = reg.fitness;
+  m["registration.rmse_mm"] = reg.rmse * 1000;
+  m["registration.time_s"] = reg.time_s;
+  m["registration.message"] = reg.message;
+
+  if (!reg.confident) {
+    out.refused = true;
+    out.exit_code = 1;
+    out.verdict = "refused: registration not confident (" + reg.message + ")";
+  } else {
+    progress(opt, "detection", 0.3);
+    const MeshBvh cad_bvh(setup.casting.nominal);
+    out.detection = perception::detect_flash(cloud_M, cad_bvh, X_CM_est, sc.detection);
+  }
+  const double perception_s = seconds_since(t_perc);
+  const auto& det = out.detection;
+
+  // --- Scoring (ground truth from here on).
+  progress(opt, "scoring", 0.9);
+  if (det.ran) {
+    const auto seg = score_segmentation(det.labels, scan.result.truth);
+    m["segmentation.precision"] = seg.precision;
+    m["segmentation.recall"] = seg.recall;
+    m["segmentation.flash_points_detected"] = seg.true_positive + seg.false_positive;
+    m["segmentation.flash_points_true"] = seg.true_positive + seg.false_negative;
+    m["segmentation.regions"] = det.regions.size();
+    m["segmentation.noise_sigma_mm"] = det.noise_sigma * 1000;
+    m["segmentation.threshold_mm"] = det.threshold * 1000;
+    m["segmentation.time_s"] = det.time_s;
+    std::vector<Curve> extracted, truth;
+    for (const auto& p : det.paths) extracted.push_back({p.points_C, p.closed});
+    for (const auto& f : setup.casting.fins) truth.push_back({f.root, f.closed});
+    const auto ps = score_path(extracted, truth);
+    m["path.count"] = det.paths.size();
+    m["path.true_count"] = truth.size();
+    m["path.mean_mm"] = number(ps.mean * 1000);
+    m["path.rmse_mm"] = number(ps.rmse * 1000);
+    m["path.max_mm"] = number(ps.max * 1000);
+    m["path.coverage"] = ps.coverage;
+    m["path.spurious_max_mm"] = number(ps.spurious_max * 1000);
+    m["path.length_m"] = ps.path_length;
+    m["path.true_length_m"] = ps.true_length;
+    if (write) write_paths(dir.string(), det);
+    if (write && opt.write_scan) {
+      PointCloud lab;
+      lab.points.reserve(cloud_M.size());
+      for (const auto& p : cloud_M.points) lab.points.push_back((X_CM_est * p.cast<double>()).cast<float>());
+      lab.labels = det.labels;
+      save_ply((dir / "scan_detected_C.ply").string(), lab);
+    }
+  }
+
+  m["timing.scan_s"] = scan_s;
+  m["timing.perception_s"] = perception_s;
+  m["timing.total_s"] = seconds_since(t_total);
+  if (!out.refused) {
+    out.verdict = det.paths.empty() ? "nothing to grind" : det.message;
+  }
+  m["verdict"] = out.verdict;
+  m["exit_code"] = out.exit_code;
+  if (write) write_text_file((dir / "metrics.json").string(), m.dump(2) + "\n");
+  if (!write) {
+    std::error_code ec;
+    fs::remove_all(cell_dir, ec);
+  }
+  progress(opt, "done", 1.0);
+  return out;
+}
+
+}  // namespace flashtwin::pipeline

@@ -1,0 +1,247 @@
+// Flash detection on synthetic parts: boxes with box-shaped fins, sampled as a scanner looking
+// from above would see them (upward and sideways faces), with Gaussian noise along the normal.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "flashtwin/core/errors.hpp"
+#include "flashtwin/core/mesh_query.hpp"
+#include "flashtwin/core/random.hpp"
+#include "flashtwin/perception/flash_detection.hpp"
+
+using namespace flashtwin;
+using namespace flashtwin::perception;
+
+namespace {
+
+TriangleMesh box(const Vec3& lo, const Vec3& hi) {
+  TriangleMesh m;
+  for (int i = 0; i < 8; ++i)
+    m.vertices.emplace_back(i & 1 ? hi.x() : lo.x(), i & 2 ? hi.y() : lo.y(), i & 4 ? hi.z() : lo.z());
+  const int f[12][3] = {{0, 2, 1}, {1, 2, 3}, {4, 5, 6}, {5, 7, 6}, {0, 1, 4}, {1, 5, 4},
+                        {2, 6, 3}, {3, 6, 7}, {0, 4, 2}, {2, 4, 6}, {1, 3, 5}, {3, 7, 5}};
+  for (auto& t : f) m.triangles.emplace_back(t[0], t[1], t[2]);
+  return m;
+}
+
+struct Part {
+  std::vector<Eigen::AlignedBox3d> body, fins;
+  TriangleMesh cad() const {
+    TriangleMesh m;
+    for (const auto& b : body) m.append(box(b.min(), b.max()));
+    return m;
+  }
+};
+
+bool inside_any(const std::vector<Eigen::AlignedBox3d>& boxes, const Vec3& p, double eps = 1e-9) {
+  for (const auto& b : boxes)
+    if ((p.array() > b.min().array() + eps).all() && (p.array() < b.max().array() - eps).all()) return true;
+  return false;
+}
+
+// Points every `step` on the faces of every box whose normal does not point down, except
+// where they are inside another solid; noise sigma along the face normal.
+PointCloud sample(const Part& part, double step, double sigma, std::uint64_t seed,
+                  std::vector<std::uint8_t>* truth = nullptr) {
+  Rng rng(seed);
+  PointCloud c;
+  auto faces = [&](const Eigen::AlignedBox3d& b, bool is_fin) {
+    for (int axis = 0; axis < 3; ++axis)
+      for (int side = 0; side < 2; ++side) {
+        if (axis == 2 && side == 0) continue;  // the underside is not seen
+        const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+        Vec3 n = Vec3::Zero();
+        n[axis] = side ? 1 : -1;
+        for (double a = b.min()[u] + step / 2; a < b.max()[u]; a += step)
+          for (double bb = b.min()[v] + step / 2; bb < b.max()[v]; bb += step) {
+            Vec3 p;
+            p[axis] = side ? b.max()[axis] : b.min()[axis];
+            p[u] = a;
+            p[v] = bb;
+            const Vec3 probe = p + 1e-6 * n;
+            if (inside_any(part.body, probe) || inside_any(part.fins, probe)) continue;
+            c.points.push_back((p + rng.normal() * sigma * n).cast<float>());
+            if (truth) truth->push_back(is_fin ? 1 : 0);
+          }
+      }
+  };
+  for (const auto& b : part.body) faces(b, false);
+  for (const auto& f : part.fins) faces(f, true);
+  return c;
+}
+
+// A 100 x 60 x 30 mm block with a fin 0.8 mm thick, 5 mm out along its +y wall at z = 15 mm.
+Part straight_fin_part(double x0 = -0.04, double x1 = 0.04) {
+  Part p;
+  p.body.emplace_back(Vec3(-0.05, -0.03, 0), Vec3(0.05, 0.03, 0.03));
+  p.fins.emplace_back(Vec3(x0, 0.03, 0.0146), Vec3(x1, 0.035, 0.0154));
+  return p;
+}
+
+// The scanner 0.5 m above the part looking down; the scan handed over in its frame {M}.
+const Pose kX_CM = pose_from_xyz_rpy(Vec3(0.0, 0.0, 0.5), Vec3(M_PI, 0.0, 0.0));
+PointCloud to_scanner(const PointCloud& scan_C) {
+  PointCloud out;
+  for (const auto& p : scan_C.points) out.points.push_back((kX_CM.inverse() * p.cast<double>()).cast<float>());
+  return out;
+}
+
+double distance_to_segment(const Vec3& p, const Vec3& a, const Vec3& b) {
+  const Vec3 ab = b - a;
+  const double t = std::clamp((p - a).dot(ab) / ab.squaredNorm(), 0.0, 1.0);
+  return (a + t * ab - p).norm();
+}
+
+}  // namespace
+
+TEST(FlashDetection, StraightFinPathWithinFiftyMicrons) {
+  const Part part = straight_fin_part();
+  std::vector<std::uint8_t> truth;
+  // The scan arrives in the scanner frame: put it somewhere else and hand over the pose.
+  // Faces sampled every 0.1 mm (the fin edge, 0.8 mm tall, gets 8 rows).
+  const PointCloud scan_C = sample(part, 0.0001, 0.03e-3, 7, &truth);
+  const Pose X_CM = pose_from_xyz_rpy(Vec3(0.1, -0.2, 0.5), Vec3(M_PI, 0.1, 0.3));
+  PointCloud scan_M;
+  for (const auto& p : scan_C.points) scan_M.points.push_back((X_CM.inverse() * p.cast<double>()).cast<float>());
+  const MeshBvh cad(part.cad());
+  const auto r = detect_flash(scan_M, cad, X_CM);
+  ASSERT_TRUE(r.ran);
+  ASSERT_EQ(r.regions.size(), 1u);
+  ASSERT_EQ(r.paths.size(), 1u);
+  const auto& path = r.paths[0];
+  EXPECT_FALSE(path.closed);
+  // The true root: the fin's mid-line on the wall.
+  const Vec3 a(-0.04, 0.03, 0.015), b(0.04, 0.03, 0.015);
+  double worst = 0;
+  double worst_z = 0;
+  for (const auto& p : path.points_C) {
+    worst = std::max(worst, distance_to_segment(p, a, b));
+    worst_z = std::max(worst_z, std::abs(p.z() - 0.015));
+  }
+  EXPECT_LT(worst_z, 0.05e-3);
+  EXPECT_LT(worst, 0.05e-3);
+  // It spans the fin (within a few path voxels of each end).
+  EXPECT_GT(path.length(), 0.08 - 4e-3);
+  // Fin normal points up (the scanner side), labels agree with the truth.
+  EXPECT_GT(r.regions[0].normal_C.z(), 0.99);
+  std::size_t tp = 0, fp = 0, fn = 0;
+  for (std::size_t i = 0; i < truth.size(); ++i) {
+    tp += truth[i] == 1 && r.labels[i] == kDetectFlash;
+    fp += truth[i] == 0 && r.labels[i] == kDetectFlash;
+    fn += truth[i] == 1 && r.labels[i] != kDetectFlash;
+  }
+  EXPECT_GT(static_cast<double>(tp) / (tp + fp), 0.98);
+  EXPECT_GT(static_cast<double>(tp) / (tp + fn), 0.95);
+  // Walking direction: fin normal x surface normal (+z x +y = -x).
+  EXPECT_LT((path.points_C.back() - path.points_C.front()).x(), 0);
+}
+
+TEST(FlashDetection, HoleFlashIsOneClosedLoop) {
+  // A plate with a 20 x 20 mm square hole; a 1 mm ring fin sticks 2 mm into the hole.
+  Part part;
+  part.body.emplace_back(Vec3(-0.04, -0.04, 0), Vec3(-0.01, 0.04, 0.02));
+  part.body.emplace_back(Vec3(0.01, -0.04, 0), Vec3(0.04, 0.04, 0.02));
+  part.body.emplace_back(Vec3(-0.01, -0.04, 0), Vec3(0.01, -0.01, 0.02));
+  part.body.emplace_back(Vec3(-0.01, 0.01, 0), Vec3(0.01, 0.04, 0.02));
+  const double z0 = 0.0095, z1 = 0.0105;
+  part.fins.emplace_back(Vec3(-0.01, -0.01, z0), Vec3(-0.008, 0.01, z1));
+  part.fins.emplace_back(Vec3(0.008, -0.01, z0), Vec3(0.01, 0.01, z1));
+  part.fins.emplace_back(Vec3(-0.008, -0.01, z0), Vec3(0.008, -0.008, z1));
+  part.fins.emplace_back(Vec3(-0.008, 0.008, z0), Vec3(0.008, 0.01, z1));
+  const PointCloud scan = to_scanner(sample(part, 0.0001, 0.03e-3, 3));
+  const MeshBvh cad(part.cad());
+  const auto r = detect_flash(scan, cad, kX_CM);
+  ASSERT_TRUE(r.ran);
+  ASSERT_EQ(r.paths.size(), 1u) << r.message;
+  EXPECT_TRUE(r.paths[0].closed);
+  // Around the hole: 80 mm of wall at the fin's mid height.
+  EXPECT_NEAR(r.paths[0].length(), 0.08, 0.004);
+  for (const auto& p : r.paths[0].points_C) {
+    EXPECT_NEAR(p.z(), 0.01, 0.1e-3);
+    EXPECT_NEAR(std::max(std::abs(p.x()), std::abs(p.y())), 0.01, 0.05e-3);
+  }
+}
+
+TEST(FlashDetection, NoFlashNothingToGrind) {
+  Part part = straight_fin_part();
+  part.fins.clear();
+  const PointCloud scan = to_scanner(sample(part, 0.0005, 0.03e-3, 5));
+  const MeshBvh cad(part.cad());
+  const auto r = detect_flash(scan, cad, kX_CM);
+  ASSERT_TRUE(r.ran);
+  EXPECT_TRUE(r.paths.empty());
+  EXPECT_TRUE(r.regions.empty());
+  EXPECT_NE(r.message.find("nothing to grind"), std::string::npos);
+}
+
+TEST(FlashDetection, SeveralRegionsWithGaps) {
+  // Two fins on the +y wall with a 15 mm gap, one on the -x wall: three regions, three paths.
+  Part part;
+  part.body.emplace_back(Vec3(-0.05, -0.03, 0), Vec3(0.05, 0.03, 0.03));
+  part.fins.emplace_back(Vec3(-0.045, 0.03, 0.0146), Vec3(-0.01, 0.034, 0.0154));
+  part.fins.emplace_back(Vec3(0.005, 0.03, 0.0146), Vec3(0.045, 0.036, 0.0154));
+  part.fins.emplace_back(Vec3(-0.054, -0.02, 0.0146), Vec3(-0.05, 0.02, 0.0154));
+  const PointCloud scan = to_scanner(sample(part, 0.0004, 0.03e-3, 11));
+  const MeshBvh cad(part.cad());
+  const auto r = detect_flash(scan, cad, kX_CM);
+  ASSERT_TRUE(r.ran);
+  EXPECT_EQ(r.regions.size(), 3u);
+  ASSERT_EQ(r.paths.size(), 3u);
+  std::vector<double> lengths;
+  for (const auto& p : r.paths) {
+    EXPECT_FALSE(p.closed);
+    lengths.push_back(p.length());
+  }
+  std::sort(lengths.begin(), lengths.end());
+  EXPECT_NEAR(lengths[0], 0.035, 0.004);
+  EXPECT_NEAR(lengths[1], 0.040, 0.004);
+  EXPECT_NEAR(lengths[2], 0.040, 0.004);
+}
+
+TEST(FlashDetection, BadInputIsRejected) {
+  const Part part = straight_fin_part();
+  const MeshBvh cad(part.cad());
+  const PointCloud scan = sample(part, 0.001, 0.03e-3, 1);
+  // Empty scan.
+  EXPECT_THROW(detect_flash(PointCloud{}, cad, Pose::Identity()), ArgumentError);
+  // NaN point.
+  PointCloud bad = scan;
+  bad.points[3].x() = std::nanf("");
+  EXPECT_THROW(detect_flash(bad, cad, Pose::Identity()), ArgumentError);
+  // Scan in millimetres against a CAD model in metres.
+  PointCloud mm = scan;
+  for (auto& p : mm.points) p *= 1000.f;
+  try {
+    detect_flash(mm, cad, Pose::Identity());
+    FAIL() << "units mismatch not detected";
+  } catch (const ArgumentError& e) {
+    EXPECT_NE(std::string(e.what()).find("metres"), std::string::npos) << e.what();
+  }
+  // A pose that is not rigid (scaled).
+  Pose scaled = Pose::Identity();
+  scaled.linear() *= 1.01;
+  EXPECT_THROW(detect_flash(scan, cad, scaled), ArgumentError);
+  // Impossible parameter.
+  DetectionParams p;
+  p.path_voxel = -1;
+  EXPECT_THROW(detect_flash(scan, cad, Pose::Identity(), p), ArgumentError);
+}
+
+TEST(FlashDetection, OrderPolylinesSplitsAtGapsAndClosesLoops) {
+  std::vector<Vec3> pts;
+  for (int i = 0; i < 100; ++i) {  // a circle of radius 10 mm, shuffled order
+    const double a = 2 * M_PI * ((i * 37) % 100) / 100.0;
+    pts.emplace_back(0.01 * std::cos(a), 0.01 * std::sin(a), 0);
+  }
+  for (int i = 0; i < 20; ++i) pts.emplace_back(0.05 + 0.0005 * i, 0, 0);  // a line
+  for (int i = 0; i < 20; ++i) pts.emplace_back(0.07 + 0.0005 * i, 0, 0);  // after a 10 mm gap
+  const auto lines = order_polylines(pts, 0.002);
+  ASSERT_EQ(lines.size(), 3u);
+  int closed = 0;
+  for (const auto& l : lines) {
+    closed += l.closed;
+    for (std::size_t i = 1; i < l.points.size(); ++i)
+      EXPECT_LT((l.points[i] - l.points[i - 1]).norm(), 0.002);
+  }
+  EXPECT_EQ(closed, 1);
+}

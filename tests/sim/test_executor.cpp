@@ -1,0 +1,426 @@
+// Executor: joint trajectories run on the MuJoCo cell under dynamics, with reference clamping,
+// the process model's removal and forces fed back through the tool body, and determinism.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "flashtwin/core/errors.hpp"
+#include "flashtwin/pipeline/scenario.hpp"
+#include "flashtwin/planner/kinematics.hpp"
+#include "flashtwin/sim/cell.hpp"
+#include "flashtwin/sim/executor.hpp"
+#include "flashtwin/sim/mujoco_handles.hpp"
+#include "flashtwin/sim/process.hpp"
+#include "test_util.hpp"
+
+using namespace flashtwin;
+using namespace flashtwin::sim;
+
+namespace {
+
+constexpr double mm = 1e-3;
+
+// The default scenario's cell, written and compiled once for the suite.
+struct DefaultCell {
+  RobotModel robot;
+  CellSpec spec;
+  std::string mjcf;
+  MjModelPtr model;
+};
+
+const DefaultCell& default_cell() {
+  static const DefaultCell cell = [] {
+    const auto sc = pipeline::load_scenario(ftest::source_path("scenarios/default.yaml"));
+    const auto setup = pipeline::setup_cell(sc);
+    const std::string dir = ftest::temp_dir("executor");
+    const CellFiles files = write_cell(sc.robot, setup.spec, setup.casting, dir);
+    DefaultCell c;
+    c.robot = sc.robot;
+    c.spec = setup.spec;
+    c.mjcf = files.mjcf;
+    c.model = load_mjcf_file(files.mjcf);
+    return c;
+  }();
+  return cell;
+}
+
+// Quintic rest-to-rest joint motion from qa to qb in T seconds, sampled every dt, with the
+// planned TCP from the D-H forward kinematics (X_WT = X_WB · X_BT).
+JointTrajectory quintic(const DefaultCell& cell, const Vector6& qa, const Vector6& qb, double T,
+                        double dt) {
+  JointTrajectory tr;
+  const int n = static_cast<int>(std::lround(T / dt));
+  for (int k = 0; k <= n; ++k) {
+    const double t = T * k / n, u = t / T;
+    const double s = u * u * u * (10 - 15 * u + 6 * u * u);
+    const double ds = 30 * u * u * (1 - u) * (1 - u) / T;
+    const Vector6 q = qa + s * (qb - qa);
+    tr.t.push_back(t);
+    tr.q.push_back(q);
+    tr.dq.push_back(ds * (qb - qa));
+    tr.planned_tcp_W.push_back(cell.spec.X_WB * planner::fk_tool(cell.robot, q));
+  }
+  return tr;
+}
+
+// Closed, outward-oriented box [lo, hi] in a frame F, mapped into {C} by X_CF.
+TriangleMesh box_mesh(const Vec3& lo, const Vec3& hi, const Pose& X_CF) {
+  TriangleMesh m;
+  for (int k = 0; k < 8; ++k)
+    m.vertices.emplace_back(k & 1 ? hi.x() : lo.x(), k & 2 ? hi.y() : lo.y(),
+                            k & 4 ? hi.z() : lo.z());
+  const int quads[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4},
+                           {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
+  const Vec3 centre = 0.5 * (lo + hi);
+  for (const auto& q : quads) {
+    Eigen::Vector3i t0(q[0], q[1], q[2]), t1(q[0], q[2], q[3]);
+    const Vec3 nrm =
+        (m.vertices[q[1]] - m.vertices[q[0]]).cross(m.vertices[q[2]] - m.vertices[q[0]]);
+    if (nrm.dot(m.vertices[q[0]] - centre) < 0) {
+      std::swap(t0[1], t0[2]);
+      std::swap(t1[1], t1[2]);
+    }
+    m.triangles.push_back(t0);
+    m.triangles.push_back(t1);
+  }
+  return m.transformed(X_CF);
+}
+
+Vec3 mean_of(const std::vector<Vec3>& v, const std::vector<std::size_t>& rows) {
+  Vec3 s = Vec3::Zero();
+  for (std::size_t r : rows) s += v[r];
+  return rows.empty() ? s : Vec3(s / static_cast<double>(rows.size()));
+}
+
+// A slow sweep of joint 1 (the TCP moves ~20 mm along an arc at up to ~10 mm/s) and a thin fin
+// standing across the TCP's path at mid-time: a body block below the tip, the fin on top of it
+// reaching `fin_top` above the tip. Frame {F}: origin at the TCP at mid-time, x along the motion,
+// z along the cutter axis (tip → shank).
+struct FinCase {
+  JointTrajectory traj;
+  ToolParams tool;
+  Pose X_CF;
+  double fin_thickness = 0.3 * mm, fin_top = 3 * mm;
+  std::unique_ptr<MaterialGrid> grid;
+};
+
+FinCase fin_case(const DefaultCell& cell) {
+  FinCase fc;
+  const Vector6 qa = cell.robot.home;
+  Vector6 qb = qa;
+  qb[0] += 0.035;
+  fc.traj = quintic(cell, qa, qb, 3.0, 0.005);
+  fc.tool = tool_params_from(cell.robot.tool);
+  const Pose X_CW = cell.spec.X_WC.inverse();
+  const std::size_t mid = fc.traj.t.size() / 2;
+  const Pose X_CT = X_CW * fc.traj.planned_tcp_W[mid];
+  const Vec3 a = fc.tool.axis_sign * X_CT.linear().col(2);
+  Vec3 x = X_CW.linear() *
+           (fc.traj.planned_tcp_W[mid + 1].translation() - fc.traj.planned_tcp_W[mid - 1].translation());
+  x = (x - x.dot(a) * a).normalized();
+  fc.X_CF = Pose::Identity();
+  fc.X_CF.linear() << x, a.cross(x), a;
+  fc.X_CF.translation() = X_CT.translation();
+  const double w = 0.5 * fc.fin_thickness;
+  const TriangleMesh body = box_mesh(Vec3(-15, -15, -13) * mm, Vec3(15, 15, -3) * mm, fc.X_CF);
+  const TriangleMesh fin = box_mesh(Vec3(-w, -15 * mm, -3 * mm), Vec3(w, 15 * mm, fc.fin_top), fc.X_CF);
+  fc.grid = std::make_unique<MaterialGrid>(body, std::vector<TriangleMesh>{fin});
+  return fc;
+}
+
+}  // namespace
+
+TEST(Executor, FreeMotionTracksTheReference) {
+  const DefaultCell& cell = default_cell();
+  const Vector6 qa = cell.robot.home;
+  Vector6 qb = qa;
+  qb << 0.25, -1.35, -0.2, 0.3, 1.3, 0.4;
+  const JointTrajectory tr = quintic(cell, qa, qb, 1.0, 0.01);
+  ExecParams p;
+  p.settle_time = 0.2;
+  const ExecutionResult r =
+      execute_trajectory(cell.mjcf, tr, nullptr, ToolParams{}, ForceParams{}, p);
+  EXPECT_EQ(r.status, ExecStatus::kOk) << r.message;
+  EXPECT_EQ(r.first_clamp_joint, -1);
+  EXPECT_EQ(r.joint_limit_violations, 0u);
+  EXPECT_EQ(r.tracking_samples, tr.t.size());
+  EXPECT_LT(r.tracking_rmse, 1 * mm);
+  EXPECT_LT(r.tracking_max, 2 * mm);
+  EXPECT_LT(r.final_error, 0.1 * mm);
+  EXPECT_DOUBLE_EQ(r.timestep, 0.001);
+  EXPECT_EQ(r.steps, 1200u);
+  EXPECT_NEAR(r.sim_time, 1.2, 1e-12);
+  EXPECT_GT(r.realtime_factor, 1.0);
+  EXPECT_EQ(r.contact_time, 0.0);
+  EXPECT_FALSE(r.has_residual);
+  // Decimated logs: every 10th step plus the last one.
+  ASSERT_EQ(r.log.t.size(), 121u);
+  EXPECT_EQ(r.log.q.size(), r.log.t.size());
+  EXPECT_EQ(r.log.planned_tcp_W.size(), r.log.t.size());
+  EXPECT_EQ(r.log.sensor_force_E.size(), r.log.t.size());
+  EXPECT_NEAR(r.log.t[100], 1.0, 1e-12);
+  EXPECT_NEAR((r.log.tcp_W.back() - tr.planned_tcp_W.back().translation()).norm(), 0, 0.1 * mm);
+
+  // Without feed-forward the servos sag under gravity: worse tracking (the figure is reported).
+  ExecParams nff = p;
+  nff.feedforward = false;
+  const ExecutionResult r2 =
+      execute_trajectory(cell.mjcf, tr, nullptr, ToolParams{}, ForceParams{}, nff);
+  EXPECT_GT(r2.tracking_rmse, r.tracking_rmse);
+  std::printf(
+      "free motion 1 s: tracking RMSE %.4f mm, max %.4f mm, max rotation %.3g mrad, final %.4f mm;"
+      " without feed-forward RMSE %.3f mm; realtime factor %.0f, step %.1f us\n",
+      r.tracking_rmse / mm, r.tracking_max / mm, r.tracking_max_rotation * 1e3,
+      r.final_error / mm, r2.tracking_rmse / mm, r.realtime_factor, r.step_cost * 1e6);
+}
+
+TEST(Executor, ClampsReferencesBeyondAJointRange) {
+  const DefaultCell& cell = default_cell();
+  const Vector6 qa = cell.robot.home;
+  Vector6 qb = qa;
+  qb[4] = 2.5;  // joint5 upper limit: 2.094 rad
+  const JointTrajectory tr = quintic(cell, qa, qb, 1.0, 0.01);
+  ExecParams p;
+  p.settle_time = 0.3;
+  p.log_decimation = 1;
+  const ExecutionResult r =
+      execute_trajectory(cell.mjcf, tr, nullptr, ToolParams{}, ForceParams{}, p);
+  EXPECT_EQ(r.status, ExecStatus::kReferenceClamped);
+  EXPECT_NE(r.message.find("joint5"), std::string::npos) << r.message;
+  EXPECT_EQ(r.first_clamp_joint, 4);
+  // First time the quintic passes upper − margin.
+  const double upper = cell.robot.limits[4].upper, bound = upper - p.limit_margin;
+  double t_cross = -1;
+  for (int k = 0; k <= 100000 && t_cross < 0; ++k) {
+    const double u = k / 100000.0, s = u * u * u * (10 - 15 * u + 6 * u * u);
+    if (qa[4] + s * (qb[4] - qa[4]) > bound) t_cross = u;
+  }
+  EXPECT_NEAR(r.first_clamp_time, t_cross, 1.5e-3);
+  EXPECT_GT(r.clamped_steps, 100u);
+  EXPECT_EQ(r.joint_limit_violations, 0u);
+  EXPECT_LE(r.max_limit_excess, p.joint_tolerance);
+  double q5_max = -1e9, ref5_max = -1e9;
+  for (std::size_t k = 0; k < r.log.t.size(); ++k) {
+    q5_max = std::max(q5_max, r.log.q[k][4]);
+    ref5_max = std::max(ref5_max, r.log.q_ref[k][4]);
+  }
+  EXPECT_LE(ref5_max, bound + 1e-12);
+  EXPECT_LE(q5_max, upper + p.joint_tolerance);
+  // The arm settles at the clamped reference.
+  EXPECT_NEAR(r.log.q.back()[4], bound, 1e-3);
+  std::printf("clamped joint5 at t = %.3f s (%zu steps); max q5 %.5f rad vs upper %.5f\n",
+              r.first_clamp_time, r.clamped_steps, q5_max, upper);
+}
+
+TEST(Executor, GrindingRemovesMaterialAndLoadsTheFlange) {
+  const DefaultCell& cell = default_cell();
+  FinCase fc = fin_case(cell);
+  ExecParams p;
+  p.settle_time = 0.1;
+  p.log_decimation = 5;
+  const ForceParams force;
+  const ExecutionResult free_run = execute_trajectory(*cell.model, fc.traj, nullptr, fc.tool, force, p);
+  const double initial = fc.grid->flash_voxels_initial() * fc.grid->voxel_volume();
+  const ExecutionResult r = execute_trajectory(*cell.model, fc.traj, fc.grid.get(), fc.tool, force, p);
+  ASSERT_EQ(r.status, ExecStatus::kOk) << r.message;
+  EXPECT_EQ(r.joint_limit_violations, 0u);
+  ASSERT_TRUE(r.has_residual);
+
+  // The burr cut a slot through the fin: its silhouette above the fin's root (the ball end up to
+  // fin_top above the tip: a circular segment) times the fin's thickness.
+  const double rad = fc.tool.radius, hseg = fc.fin_top;
+  const double segment = rad * rad * std::acos((rad - hseg) / rad) -
+                         (rad - hseg) * std::sqrt(2 * rad * hseg - hseg * hseg);
+  const double slot = segment * fc.fin_thickness;
+  EXPECT_NEAR(r.removed_flash_volume, slot, 0.3 * slot);
+  EXPECT_NEAR(r.residual.flash_volume_initial, initial, 1e-15);
+  EXPECT_NEAR(r.residual.flash_volume_initial - r.residual.flash_volume_remaining,
+              r.removed_flash_volume, 1e-15);
+  EXPECT_GT(r.residual.flash_removed_fraction, 0.0);
+  EXPECT_LT(r.residual.flash_removed_fraction, 0.5);
+  EXPECT_EQ(r.removed_body_volume, 0.0);
+  EXPECT_GT(r.removal_steps, 100u);
+  EXPECT_GT(r.contact_time, 0.3);
+  EXPECT_GT(r.force_mean, 5.0);
+  EXPECT_GE(r.force_max, r.force_mean);
+  EXPECT_GT(r.log.removed_volume.back(), 0.0);
+
+  // The flange sensor feels the process force: in contact, the change of its reading (against
+  // the same motion without material) matches the force on the tool.
+  ASSERT_EQ(free_run.log.t.size(), r.log.t.size());
+  std::vector<std::size_t> contact;
+  for (std::size_t k = 0; k < r.log.t.size(); ++k)
+    if (r.log.normal_force[k] > 0) contact.push_back(k);
+  ASSERT_GT(contact.size(), 20u);
+  if (std::getenv("EXEC_TRACE"))
+    for (std::size_t k = 0; k < r.log.t.size(); ++k)
+      std::printf("%.3f fn %.1f ft %.1f F %.1f %.1f %.1f S %.1f %.1f %.1f\n", r.log.t[k],
+                  r.log.normal_force[k], r.log.tangential_force[k], r.log.process_force_W[k].x(),
+                  r.log.process_force_W[k].y(), r.log.process_force_W[k].z(),
+                  r.log.sensor_force_W[k].x() - free_run.log.sensor_force_W[k].x(),
+                  r.log.sensor_force_W[k].y() - free_run.log.sensor_force_W[k].y(),
+                  r.log.sensor_force_W[k].z() - free_run.log.sensor_force_W[k].z());
+  std::vector<Vec3> delta(r.log.t.size());
+  for (std::size_t k = 0; k < delta.size(); ++k)
+    delta[k] = r.log.sensor_force_W[k] - free_run.log.sensor_force_W[k];
+  const Vec3 applied = mean_of(r.log.process_force_W, contact);
+  const Vec3 felt = mean_of(delta, contact);
+  EXPECT_GT(applied.norm(), 5.0);
+  // MuJoCo's force sensor reports the force of the child (the flange side) on the parent.
+  EXPECT_LT((felt - applied).norm(), 0.15 * applied.norm())
+      << "applied " << applied.transpose() << " felt " << felt.transpose();
+  // Without contact the two runs see the same flange force.
+  EXPECT_LT((delta.front()).norm(), 1e-9);
+  std::printf(
+      "fin cut: removed %.2f mm^3 (slot %.2f), contact %.2f s, normal force mean %.1f N max %.1f "
+      "N; mean force on tool %.1f N, sensor change %.1f N; tracking RMSE %.3f mm (free %.4f "
+      "mm); %zu removal steps, realtime factor %.0f\n",
+      r.removed_flash_volume / (mm * mm * mm), slot / (mm * mm * mm), r.contact_time,
+      r.force_mean, r.force_max, applied.norm(), felt.norm(), r.tracking_rmse / mm,
+      free_run.tracking_rmse / mm, r.removal_steps, r.realtime_factor);
+}
+
+TEST(Executor, SameInputsGiveIdenticalLogs) {
+  const DefaultCell& cell = default_cell();
+  FinCase fc = fin_case(cell);
+  ExecParams p;
+  p.settle_time = 0.05;
+  p.log_decimation = 3;
+  MaterialGrid g1 = *fc.grid, g2 = *fc.grid;
+  const ExecutionResult a = execute_trajectory(*cell.model, fc.traj, &g1, fc.tool, ForceParams{}, p);
+  const ExecutionResult b = execute_trajectory(*cell.model, fc.traj, &g2, fc.tool, ForceParams{}, p);
+  ASSERT_GT(a.removed_flash_volume, 0.0);
+  EXPECT_EQ(a.log.t, b.log.t);
+  EXPECT_EQ(a.log.q, b.log.q);
+  EXPECT_EQ(a.log.q_ref, b.log.q_ref);
+  EXPECT_EQ(a.log.tcp_W, b.log.tcp_W);
+  EXPECT_EQ(a.log.normal_force, b.log.normal_force);
+  EXPECT_EQ(a.log.tangential_force, b.log.tangential_force);
+  EXPECT_EQ(a.log.process_force_W, b.log.process_force_W);
+  EXPECT_EQ(a.log.sensor_force_E, b.log.sensor_force_E);
+  EXPECT_EQ(a.log.sensor_torque_E, b.log.sensor_torque_E);
+  EXPECT_EQ(a.log.removed_volume, b.log.removed_volume);
+  EXPECT_EQ(a.tracking_rmse, b.tracking_rmse);
+  EXPECT_EQ(a.force_mean, b.force_mean);
+  EXPECT_EQ(a.residual.flash_volume_remaining, b.residual.flash_volume_remaining);
+  EXPECT_EQ(g1.flash_voxels_remaining(), g2.flash_voxels_remaining());
+}
+
+TEST(Executor, AdmittanceHoldsTheTargetForceOnASurface) {
+  // The ball tip descends slowly onto a flat block below it (from 0.3 mm above its top to 0.1 mm
+  // into it) and stays there; the admittance control then presses it in until the normal force
+  // reaches the target.
+  const DefaultCell& cell = default_cell();
+  const ToolParams tool = tool_params_from(cell.robot.tool);
+  const Vector6 home = cell.robot.home;
+  const Pose X_WT = cell.spec.X_WB * planner::fk_tool(cell.robot, home);
+  const Vec3 a_W = tool.axis_sign * X_WT.linear().col(2);  // tip → shank
+  const Matrix6 J = planner::jacobian(cell.robot, home, cell.robot.tool.X_ET);
+  auto offset = [&](double along_axis) {
+    Vector6 dx = Vector6::Zero();
+    dx.head<3>() = cell.spec.X_WB.linear().transpose() * (along_axis * a_W);
+    return Vector6(home + J.lu().solve(dx));
+  };
+  const JointTrajectory tr = quintic(cell, offset(0.3 * mm), offset(-0.1 * mm), 1.0, 0.01);
+  const Pose X_CT = cell.spec.X_WC.inverse() * X_WT;
+  Pose X_CF = Pose::Identity();
+  const Vec3 a = tool.axis_sign * X_CT.linear().col(2);
+  const Vec3 x = (Vec3::UnitX() - Vec3::UnitX().dot(a) * a).normalized();
+  X_CF.linear() << x, a.cross(x), a;
+  X_CF.translation() = X_CT.translation();
+  // Block top at the home tip; a small fin on it so that the grid holds flash.
+  const TriangleMesh body = box_mesh(Vec3(-10, -10, -10) * mm, Vec3(10, 10, 0) * mm, X_CF);
+  const TriangleMesh fin = box_mesh(Vec3(5, -1, 0) * mm, Vec3(6, 1, 2) * mm, X_CF);
+  const MaterialGrid grid0(body, {fin});
+
+  ExecParams p;
+  p.settle_time = 1.0;
+  p.force_control.enabled = true;
+  p.force_control.target_force = 60;
+  p.force_control.max_correction = 4 * mm;
+  MaterialGrid g_on = grid0, g_off = grid0;
+  const ExecutionResult on = execute_trajectory(*cell.model, tr, &g_on, tool, ForceParams{}, p);
+  ExecParams p_off = p;
+  p_off.force_control.enabled = false;
+  const ExecutionResult off =
+      execute_trajectory(*cell.model, tr, &g_off, tool, ForceParams{}, p_off);
+  ASSERT_EQ(on.status, ExecStatus::kOk) << on.message;
+  ASSERT_EQ(off.status, ExecStatus::kOk) << off.message;
+  // Mean normal force over the last half second.
+  auto late_mean = [](const ExecutionResult& r) {
+    double s = 0;
+    int n = 0;
+    for (std::size_t k = 0; k < r.log.t.size(); ++k)
+      if (r.log.t[k] >= 1.5) {
+        s += r.log.normal_force[k];
+        ++n;
+      }
+    return n ? s / n : 0.0;
+  };
+  const double f_on = late_mean(on), f_off = late_mean(off);
+  EXPECT_NEAR(f_on, 60.0, 12.0);
+  EXPECT_LT(f_off, 40.0);
+  EXPECT_GT(on.log.correction.back(), 0.0);
+  EXPECT_LE(on.log.correction.back(), 4 * mm);
+  EXPECT_EQ(off.log.correction.back(), 0.0);
+  EXPECT_EQ(on.joint_limit_violations, 0u);
+  std::printf(
+      "admittance: target 60 N, late mean %.1f N (without control %.1f N), force rmse %.1f N, "
+      "correction %.3f mm, gouge %.3f mm^3 (without %.3f)\n",
+      f_on, f_off, on.force_rmse, on.log.correction.back() / mm,
+      on.removed_body_volume / (mm * mm * mm), off.removed_body_volume / (mm * mm * mm));
+}
+
+TEST(Executor, RejectsBadInputs) {
+  const DefaultCell& cell = default_cell();
+  JointTrajectory tr;
+  tr.t = {0.0, 0.1};
+  tr.q = {cell.robot.home, cell.robot.home};
+  const ToolParams tool;
+  const ForceParams force;
+  JointTrajectory shape = tr;
+  shape.dq = {Vector6::Zero()};
+  EXPECT_THROW(execute_trajectory(*cell.model, shape, nullptr, tool, force), ArgumentError);
+  JointTrajectory order = tr;
+  order.t = {0.1, 0.1};
+  EXPECT_THROW(execute_trajectory(*cell.model, order, nullptr, tool, force), ArgumentError);
+  JointTrajectory empty;
+  EXPECT_THROW(execute_trajectory(*cell.model, empty, nullptr, tool, force), ArgumentError);
+  ExecParams slow;
+  slow.timestep = 0.002;  // below 1 kHz
+  EXPECT_THROW(execute_trajectory(*cell.model, tr, nullptr, tool, force, slow), ArgumentError);
+  ExecParams dec;
+  dec.log_decimation = 0;
+  EXPECT_THROW(execute_trajectory(*cell.model, tr, nullptr, tool, force, dec), ArgumentError);
+  // A model without the contract's names.
+  const auto bare = load_mjcf_string(
+      "<mujoco><worldbody><body><joint name=\"joint1\"/><geom size=\"0.1\"/></body>"
+      "</worldbody></mujoco>");
+  EXPECT_THROW(execute_trajectory(*bare, tr, nullptr, tool, force), InputError);
+}
+
+TEST(Executor, CallbackSeesEveryStep) {
+  const DefaultCell& cell = default_cell();
+  JointTrajectory tr;
+  tr.t = {0.0, 0.05};
+  tr.q = {cell.robot.home, cell.robot.home};
+  ExecParams p;
+  p.settle_time = 0.01;
+  int calls = 0;
+  double last = 0;
+  p.on_step = [&](const mjModel* m, mjData* d, double t) {
+    ++calls;
+    EXPECT_EQ(m->nu, 6);
+    EXPECT_DOUBLE_EQ(d->time, t);
+    last = t;
+  };
+  const ExecutionResult r = execute_trajectory(*cell.model, tr, nullptr, ToolParams{}, ForceParams{}, p);
+  EXPECT_EQ(calls, 60);
+  EXPECT_EQ(r.steps, 60u);
+  EXPECT_NEAR(last, 0.06, 1e-12);
+}
