@@ -14,6 +14,7 @@
 #include "flashtwin/core/io.hpp"
 #include "flashtwin/core/mesh_query.hpp"
 #include "flashtwin/pipeline/scoring.hpp"
+#include "flashtwin/planner/grind_planner.hpp"
 #include "flashtwin/sim/cell.hpp"
 #include "flashtwin/sim/scan_cell.hpp"
 
@@ -251,10 +252,73 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     }
   }
 
+  // --- Planning: one grinding motion per path, on the casting where perception put it.
+  double planning_s = 0;
+  if (!out.refused && !det.paths.empty()) {
+    progress(opt, "planning", 0.5);
+    const auto t_plan = Clock::now();
+    const Pose X_BC_est = setup.spec.X_WB.inverse() * setup.spec.X_WM * X_CM_est.inverse();
+    double vmax = 0, amax = 0, manip = 1e300, total_time = 0, length = 0;
+    int planned = 0, failed = 0;
+    std::string first_failure;
+    json plans = json::array();
+    for (std::size_t k = 0; k < det.paths.size(); ++k) {
+      const auto& p = det.paths[k];
+      planner::GrindPath gp;
+      gp.points_C = p.points_C;
+      gp.normals_C = p.normals_C;
+      gp.fin_normal_C = p.fin_normal_C;
+      gp.closed = p.closed;
+      planner::GrindResult g;
+      try {
+        g = planner::plan_grind(sc.robot, X_BC_est, gp, sc.grind);
+      } catch (const ArgumentError& e) {
+        g.status = planner::GrindStatus::kDiscontinuous;
+        g.message = std::string("path rejected: ") + e.what();
+      }
+      json pj = {{"path", k}, {"status", planner::to_string(g.status)}, {"message", g.message}};
+      if (g.ok()) {
+        ++planned;
+        vmax = std::max(vmax, g.max_joint_velocity_ratio);
+        amax = std::max(amax, g.max_joint_accel_ratio);
+        manip = std::min(manip, g.min_manipulability);
+        total_time += g.total_time;
+        length += g.cut_length;
+        pj["time_s"] = g.total_time;
+        pj["cut_length_m"] = g.cut_length;
+        if (write) {
+          const std::string pd = (dir / "plan" / ("path_" + std::to_string(k))).string();
+          planner::write_grind_outputs(g, pd);
+          if (planned == 1) write_text_file((dir / "trajectory.csv").string(), planner::trajectory_csv(g));
+        }
+      } else {
+        ++failed;
+        if (first_failure.empty()) first_failure = "path " + std::to_string(k) + ": " + g.message;
+      }
+      plans.push_back(pj);
+    }
+    planning_s = seconds_since(t_plan);
+    m["trajectory.paths_planned"] = planned;
+    m["trajectory.paths_failed"] = failed;
+    m["trajectory.max_joint_velocity_ratio"] = vmax;
+    m["trajectory.max_joint_accel_ratio"] = amax;
+    m["trajectory.min_manipulability"] = number(planned ? manip : NAN);
+    m["trajectory.total_time_s"] = total_time;
+    m["trajectory.cut_length_m"] = length;
+    if (!first_failure.empty()) m["trajectory.first_failure"] = first_failure;
+    if (write) write_text_file((dir / "plans.json").string(), plans.dump(1) + "\n");
+    if (failed > 0) {
+      out.exit_code = 1;
+      out.verdict = std::to_string(failed) + " of " + std::to_string(det.paths.size()) +
+                    " path(s) could not be planned (" + first_failure + ")";
+    }
+  }
+
   m["timing.scan_s"] = scan_s;
   m["timing.perception_s"] = perception_s;
+  m["timing.planning_s"] = planning_s;
   m["timing.total_s"] = seconds_since(t_total);
-  if (!out.refused) {
+  if (!out.refused && out.exit_code == 0) {
     out.verdict = det.paths.empty() ? "nothing to grind" : det.message;
   }
   m["verdict"] = out.verdict;

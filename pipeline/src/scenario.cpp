@@ -222,6 +222,21 @@ Scenario load_scenario(const std::string& path) {
     }
   }
 
+  if (root.has("planning")) {
+    const ConfigNode pl2 = root.at("planning");
+    auto& g = sc.grind;
+    g.spacing = pl2.get_double("spacing", 1e-5, 0.05, g.spacing);
+    g.feed = pl2.get_double("feed", 1e-4, 1.0, g.feed);
+    g.approach_feed = pl2.get_double("approach_feed", 1e-4, 1.0, g.approach_feed);
+    g.approach_distance = pl2.get_double("approach_distance", 0, 0.5, g.approach_distance);
+    g.lead = pl2.get_double("lead", -0.8, 0.8, g.lead);
+    g.tilt = pl2.get_double("tilt", -0.8, 0.8, g.tilt);
+    g.max_depth_of_cut = pl2.get_double("max_depth_of_cut", 1e-5, 0.05, g.max_depth_of_cut);
+    g.manipulability_threshold =
+        pl2.get_double("manipulability_threshold", 0, 1, g.manipulability_threshold);
+    g.max_extra_tilt = pl2.get_double("max_extra_tilt", 0, 1.2, g.max_extra_tilt);
+  }
+
   if (root.has("expect")) {
     const ConfigNode ex = root.at("expect");
     if (!ex.is_map()) ex.fail("expected a mapping of metric key: [min, max] or true/false");

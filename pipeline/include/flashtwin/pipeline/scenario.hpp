@@ -7,6 +7,7 @@
 
 #include "flashtwin/core/robot.hpp"
 #include "flashtwin/perception/flash_detection.hpp"
+#include "flashtwin/planner/grind_planner.hpp"
 #include "flashtwin/sim/casting.hpp"
 #include "flashtwin/sim/cell.hpp"
 #include "flashtwin/sim/scanner.hpp"
@@ -45,6 +46,7 @@ struct Scenario {
   double calibration_translation = 0;  ///< [m] true X_WM differs from the nominal one by this
   double calibration_rotation = 0;     ///< [rad]
   perception::DetectionParams detection;  ///< `perception.detection:` overrides
+  planner::GrindParams grind;             ///< `planning:` overrides
   std::vector<Expectation> expect;        ///< `expect:` bounds checked by regression runs
 };
 

@@ -1,0 +1,205 @@
+#pragma once
+// Grinding trajectory of one flash path: quintic B-spline through the path points, tool poses
+// that hold the burr's side flush against the wall with the cutter straddling the fin, one IK
+// branch for the whole motion (approach, passes, retract) with re-orientation around
+// singularities and joint limits, and time parametrization under the joint limits.
+//
+// Geometry (all per sample, in the casting frame {C}):
+//   f    fin normal (unit), the fin plane's normal, pointing to the side the tool comes from;
+//   n    wall normal: the input normals interpolated between the nearest path points, with the
+//        component along f removed (re-orthogonalized), unit;
+//   t    travel direction: ±(n × f), the sign of the spline tangent (unit, ⟂ n and f);
+//   p    root point on the spline (on the fin's root curve, in the fin mid-plane).
+// The burr is a cylinder of radius r and cutting length L (robot.tool) running from the tip {T}
+// back toward the flange along −z_T. Its shank direction −z_T is
+//   w = cos(tilt)·(cos(lead)·f + sin(lead)·t) + sin(tilt)·n,
+// i.e. lead leans the shank toward the travel direction (a rotation about n, which keeps the
+// cylinder parallel to the wall), tilt leans it away from the wall (a rotation about t).
+// The axis crosses the fin plane at p + o·n, and the tip lies d_tip further along z_T:
+//   tip = p + o·n + d_tip·z_T,   o = e + r·sqrt(1 − c²) − min(d_tip·c, (d_tip − L)·c),  c = z_T·n
+// where e is the pass's extra offset. For lead = tilt = 0 this is tip = p + (r + e)·n − d_tip·f:
+// the cutter is tangent to the wall (e = 0) and straddles the fin. Under a tilt, o is the
+// smallest offset at which no part of the cutting length enters the wall plane (no gouge).
+// x_T is a fixed reference direction (the first travel direction, projected ⟂ z_T) turned about
+// z_T by the spin angle; the burr is axisymmetric, so the spin is free and the planner picks it.
+#include <cstddef>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "flashtwin/core/plot.hpp"
+#include "flashtwin/core/robot.hpp"
+#include "flashtwin/planner/ik.hpp"
+#include "flashtwin/planner/timing.hpp"
+
+namespace flashtwin::planner {
+
+/// One flash path as perception delivers it, in the casting frame {C}.
+struct GrindPath {
+  std::vector<Vec3> points_C;   ///< ordered root points on the CAD surface [m], N ≥ 2 (closed: ≥ 6)
+  std::vector<Vec3> normals_C;  ///< outward CAD surface (wall) normal at each point, N, any length
+  Vec3 fin_normal_C = Vec3::UnitZ();  ///< fin plane normal, toward the tool's side (e.g. up)
+  bool closed = false;                ///< closed loop (flash around a hole)
+  double fin_height = 0;  ///< how far the fin sticks out of the wall [m]; 0: unknown → one pass
+};
+
+/// Options of plan_grind (defaults for a 12 mm burr on steel flash).
+struct GrindParams {
+  double spacing = 0.0005;  ///< arc-length spacing of the samples along the path [m]; the input
+                            ///< points are thinned to at least this spacing first
+  double feed = 0.01;       ///< cutting feed along the tool path (passes and pass links) [m/s]
+  double approach_feed = 0.02;      ///< feed of the approach and retract moves [m/s]
+  double approach_distance = 0.03;  ///< approach/retract height along the fin normal [m]
+  double lead = 0;                  ///< lead angle (shank toward the travel direction) [rad]
+  double tilt = 0;                  ///< tilt angle (shank away from the wall) [rad]
+  /// Axial distance from the fin mid-plane crossing to the tip [m]; unset: tool length / 2.
+  std::optional<double> tip_depth;
+  double max_depth_of_cut = 0.002;  ///< largest radial depth of cut per pass [m]
+  /// Manipulability |det J| below which a sample counts as near-singular [-] (the FT6 reaches
+  /// about 0.12 in comfortable poses).
+  double manipulability_threshold = 0.01;
+  /// Largest extra lean of the tool axis (lead and tilt combined) allowed to escape a
+  /// singularity or a joint limit [rad]; rotations about the tool axis are always allowed.
+  double max_extra_tilt = 0.26;
+  int reorient_steps = 4;  ///< extra leans tried: max_extra_tilt·k / reorient_steps, k = 1..
+  /// Path length over which a re-orientation fades in and out on each side of the range that
+  /// needs it [m] (quintic smoothstep), so the joint path stays smooth; doubled (up to ×4) when
+  /// the wrist cannot follow the fade within max_joint_jump per sample.
+  double blend_length = 0.01;
+  int spin_candidates = 4;  ///< base spins tried per IK branch: 2π·k / spin_candidates (≥ 1)
+  unsigned branch_mask = 0xFF;  ///< IK branches allowed, bit IkBranch::index() (0xFF: all)
+  double max_joint_jump = 0.1;  ///< largest joint change between consecutive samples [rad]
+  /// Time parametrization; its `feed` is ignored (each segment gets feed or approach_feed).
+  TimingParams timing;
+};
+
+/// What a sample belongs to.
+enum class SampleKind {
+  kApproach,  ///< straight move down along the fin normal to the start of the first pass
+  kCut,       ///< a pass along the path
+  kLink,      ///< radial step-in between passes (cutting feed)
+  kRetract,   ///< straight move up along the fin normal from the end of the last pass
+};
+
+/// One planned sample (IK node) of the motion.
+struct GrindSample {
+  SampleKind kind = SampleKind::kCut;
+  int pass = 0;        ///< pass 0..passes−1 (approach: 0, retract: the last)
+  int path_index = 0;  ///< nearest input point (points_C index)
+  double s = 0;        ///< tool path length from the start [m] (TCP travel)
+  Pose X_CT = Pose::Identity();  ///< tool pose in the casting frame
+  Pose X_BT = Pose::Identity();  ///< tool pose in the robot base, X_BC·X_CT
+  Vector6 q = Vector6::Zero();   ///< joint configuration [rad] (nominal pose's IK on failure, if any)
+  double manipulability = 0;     ///< |det J| at q
+  double axis_offset = 0;        ///< o: axis distance from the root along n at the fin plane [m]
+  double extra_lead = 0, extra_tilt = 0, extra_spin = 0;  ///< re-orientation applied here [rad]
+};
+
+/// A consecutive run of samples timed as one move (starts and ends at rest).
+struct GrindSegment {
+  SampleKind kind = SampleKind::kCut;
+  int pass = 0;
+  std::size_t first_sample = 0, last_sample = 0;  ///< inclusive; neighbours share a sample
+  std::size_t first_step = 0, last_step = 0;      ///< inclusive trajectory sample indices
+  double feed = 0;                                ///< [m/s]
+};
+
+enum class GrindStatus {
+  kOk,
+  kUnreachable,    ///< a pose is out of reach for every branch and re-orientation
+  kJointLimit,     ///< a pose needs a joint beyond its range for every branch and re-orientation
+  kSingular,       ///< manipulability stays below the threshold for every allowed re-orientation
+  kDiscontinuous,  ///< the chosen branch jumps (or is lost) between samples, not repairable
+  kTimingFailed,   ///< time_parametrize refused the joint path (see message)
+};
+
+/// Why a range of samples was re-oriented (or could not be).
+enum class ReorientReason { kSingular, kJointLimit, kUnreachable, kDiscontinuous };
+
+/// A range of samples that needed a re-orientation, and the one applied (at full weight inside
+/// the range; faded in and out over blend_length around it).
+struct ReorientedRange {
+  ReorientReason reason = ReorientReason::kSingular;
+  std::size_t first_sample = 0, last_sample = 0;  ///< inclusive, the samples that were bad
+  int first_path_index = 0, last_path_index = 0;  ///< their nearest input points
+  int pass = 0;                                   ///< pass of the first sample
+  double nominal_min_manipulability = 0;  ///< lowest manipulability before (0 where no IK)
+  double min_manipulability = 0;          ///< lowest manipulability after, over the blend window
+  double extra_lead = 0, extra_tilt = 0, extra_spin = 0;  ///< the re-orientation [rad]
+  double blend_length = 0;  ///< fade length used on each side [m] (blend_length ×1, ×2 or ×4)
+};
+
+/// Outcome of plan_grind. Samples are filled even on failure (with the nominal poses), so a
+/// caller can show where it failed; trajectory and tcp_B only when ok.
+struct GrindResult {
+  GrindStatus status = GrindStatus::kOk;
+  std::string message;  ///< empty when ok; else names the path index, sample, pass and reason
+  // Failure details (status != kOk).
+  int failed_sample = -1;      ///< first bad sample (index into samples)
+  int failed_path_index = -1;  ///< its nearest input point
+  int failed_pass = -1;
+  int failed_joint = -1;       ///< 0..5 for kJointLimit (timing: the joint named by it)
+  double failed_excess = 0;    ///< [rad] beyond the limit (kJointLimit); manipulability (kSingular)
+
+  IkBranch branch;       ///< the one configuration branch of the whole motion
+  double base_spin = 0;  ///< chosen rotation of x_T about z_T from the reference [rad]
+  int seeds_tried = 0, seeds_completed = 0;  ///< (branch, spin) seeds tracked / that completed
+
+  int passes = 0;
+  std::vector<double> pass_offsets;  ///< extra axis offset e of each pass [m], last one 0
+  std::vector<GrindSample> samples;
+  std::vector<GrindSegment> segments;
+  std::vector<ReorientedRange> reoriented_ranges;
+
+  JointTrajectory trajectory;  ///< all segments concatenated (t, q, dq, ddq, s, sdot, sddot)
+  std::vector<Pose> tcp_B;     ///< FK of trajectory.q: planned TCP pose X_BT over time
+  std::vector<FeedReduction> feed_reductions;  ///< sample indices into `samples`, s global
+
+  double max_joint_velocity_ratio = 0;  ///< trajectory.max_joint_velocity_ratio
+  double max_joint_accel_ratio = 0;     ///< trajectory.max_joint_accel_ratio
+  double min_manipulability = 0;        ///< trajectory.min_manipulability (over the samples)
+  double total_time = 0;                ///< [s]
+  double path_length = 0;               ///< total TCP travel [m]
+  double cut_length = 0;                ///< TCP travel while cutting (passes + links) [m]
+  bool ok() const { return status == GrindStatus::kOk; }
+};
+
+/// Plans the grinding motion of one path on the casting at X_BC.
+/// @throws ArgumentError on malformed input: size mismatch, non-finite values, a zero fin
+/// normal, a wall normal (nearly) parallel to the fin normal, too few points after thinning,
+/// parameters out of range, or a robot the analytic IK does not handle.
+GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPath& path,
+                       const GrindParams& params = {});
+
+/// Tool pose X_CT of the geometry above (exposed for tests and for other planners).
+/// `x_ref` is the reference for x_T (projected ⟂ z_T). @pre f, n, t orthonormal.
+Pose grind_tool_pose(const Vec3& p, const Vec3& n, const Vec3& t, const Vec3& f,
+                     const Vec3& x_ref, double extra_offset, double lead, double tilt,
+                     double spin, double radius, double length, double tip_depth,
+                     double* axis_offset = nullptr);
+
+/// trajectory.csv text: t, q1..q6, dq1..dq6, ddq1..ddq6, x y z qw qx qy qz of the TCP in {B}
+/// (SI units, one header line). @pre result.ok().
+std::string trajectory_csv(const GrindResult& result);
+
+/// JSON object with status, message, branch and the trajectory.* metrics (DESIGN.md keys plus
+/// total time, lengths, passes, re-oriented ranges and feed reductions).
+std::string grind_summary_json(const GrindResult& result);
+
+/// Which joint quantity a plot shows.
+enum class JointQuantity { kPosition, kVelocity, kAcceleration };
+
+/// Joints 1..6 of one quantity over time, one line each.
+Image plot_joint_trajectory(const JointTrajectory& trajectory, JointQuantity quantity,
+                            int width = 900, int height = 500);
+
+/// Writes DIR/trajectory.csv, DIR/grind_summary.json and (when ok) DIR/joint_positions.png,
+/// DIR/joint_velocities.png, DIR/joint_accelerations.png. Creates DIR.
+/// @throws IoError when a file cannot be written.
+void write_grind_outputs(const GrindResult& result, const std::string& dir);
+
+std::string to_string(GrindStatus status);
+std::string to_string(SampleKind kind);
+std::string to_string(ReorientReason reason);
+
+}  // namespace flashtwin::planner

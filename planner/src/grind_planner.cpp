@@ -1,0 +1,1114 @@
+#include "flashtwin/planner/grind_planner.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdarg>
+#include <cstdio>
+#include <limits>
+
+#include "flashtwin/core/errors.hpp"
+#include "flashtwin/core/io.hpp"
+#include "flashtwin/planner/bspline.hpp"
+#include "flashtwin/planner/kinematics.hpp"
+
+namespace flashtwin::planner {
+
+std::string to_string(GrindStatus status) {
+  switch (status) {
+    case GrindStatus::kOk: return "ok";
+    case GrindStatus::kUnreachable: return "unreachable";
+    case GrindStatus::kJointLimit: return "joint_limit";
+    case GrindStatus::kSingular: return "singular";
+    case GrindStatus::kDiscontinuous: return "discontinuous";
+    case GrindStatus::kTimingFailed: return "timing_failed";
+  }
+  return "unknown";
+}
+
+std::string to_string(SampleKind kind) {
+  switch (kind) {
+    case SampleKind::kApproach: return "approach";
+    case SampleKind::kCut: return "cut";
+    case SampleKind::kLink: return "link";
+    case SampleKind::kRetract: return "retract";
+  }
+  return "unknown";
+}
+
+std::string to_string(ReorientReason reason) {
+  switch (reason) {
+    case ReorientReason::kSingular: return "singular";
+    case ReorientReason::kJointLimit: return "joint_limit";
+    case ReorientReason::kUnreachable: return "unreachable";
+    case ReorientReason::kDiscontinuous: return "discontinuous";
+  }
+  return "unknown";
+}
+
+namespace {
+
+std::string strf(const char* fmt, ...) __attribute__((format(printf, 1, 2)));
+std::string strf(const char* fmt, ...) {
+  char buf[1024];
+  va_list ap;
+  va_start(ap, fmt);
+  std::vsnprintf(buf, sizeof buf, fmt, ap);
+  va_end(ap);
+  return buf;
+}
+
+std::string vec_text(const Vec3& v) { return strf("(%g, %g, %g)", v.x(), v.y(), v.z()); }
+
+// Quintic smoothstep: 0 → 1 with zero first and second derivatives at both ends.
+double smoothstep(double x) {
+  x = std::clamp(x, 0.0, 1.0);
+  return x * x * x * (10 - 15 * x + 6 * x * x);
+}
+
+// Nominal geometry of one sample, in {C} (see the header for the symbols).
+struct Geo {
+  Vec3 p, n, t;
+  double extra = 0;  // pass offset e [m]
+  double lift = 0;   // approach/retract height along f [m]
+  SampleKind kind = SampleKind::kCut;
+  int pass = 0;
+  int path_index = 0;
+};
+
+// Re-orientation of one sample on top of the nominal lead/tilt and the base spin [rad].
+struct Dev {
+  double lead = 0, tilt = 0, spin = 0;
+};
+
+// Per-sample IK outcome while following one branch.
+enum class NodeStatus { kOk, kLowManip, kUnreachable, kJointLimit, kJump, kBranchLost };
+
+struct Node {
+  NodeStatus status = NodeStatus::kUnreachable;
+  bool has_q = false;  // q is a solution on the followed branch (possibly bad otherwise)
+  Vector6 q = Vector6::Zero();
+  double manip = 0;
+  int joint = -1;     // kJointLimit: the joint; kJump: the joint that jumps
+  double value = 0;   // kJointLimit: excess [rad]; kJump: the step [rad]
+  std::string info;   // IK message for kUnreachable
+};
+
+// Severity for naming a bad range's cause (the first sample of the most severe kind).
+int severity(NodeStatus s) {
+  switch (s) {
+    case NodeStatus::kUnreachable: return 4;
+    case NodeStatus::kJointLimit: return 3;
+    case NodeStatus::kLowManip: return 2;  // jumps and lost branches are its usual symptoms
+    case NodeStatus::kBranchLost: return 1;
+    case NodeStatus::kJump: return 1;
+    case NodeStatus::kOk: return 0;
+  }
+  return 0;
+}
+
+ReorientReason reason_of(NodeStatus s) {
+  switch (s) {
+    case NodeStatus::kLowManip: return ReorientReason::kSingular;
+    case NodeStatus::kUnreachable: return ReorientReason::kUnreachable;
+    case NodeStatus::kJointLimit: return ReorientReason::kJointLimit;
+    default: return ReorientReason::kDiscontinuous;
+  }
+}
+
+GrindStatus status_of(NodeStatus s) {
+  switch (s) {
+    case NodeStatus::kLowManip: return GrindStatus::kSingular;
+    case NodeStatus::kUnreachable: return GrindStatus::kUnreachable;
+    case NodeStatus::kJointLimit: return GrindStatus::kJointLimit;
+    default: return GrindStatus::kDiscontinuous;
+  }
+}
+
+// The 2π-equivalent of `v` nearest to `ref`.
+double unwrap_near(double v, double ref) {
+  return v + 2 * M_PI * std::round((ref - v) / (2 * M_PI));
+}
+
+// How far `v` lies outside [lower, upper] (0 inside), and on which side (+1 upper, −1 lower).
+double limit_excess(const JointLimits& L, double v, int* side = nullptr) {
+  if (v > L.upper) {
+    if (side) *side = 1;
+    return v - L.upper;
+  }
+  if (v < L.lower) {
+    if (side) *side = -1;
+    return L.lower - v;
+  }
+  if (side) *side = 0;
+  return 0;
+}
+
+// Everything the per-sample solves need; immutable while the seeds are tracked.
+struct Context {
+  const RobotModel& robot;
+  const GrindParams& P;
+  Pose X_BC;
+  Vec3 f, x_ref;
+  double radius = 0, length = 0, tip_depth = 0, lead = 0, tilt = 0;
+  std::vector<Geo> geo;
+  std::vector<double> s_nom;  // nominal tool path length at each sample [m]
+
+  Pose pose_C(std::size_t i, const Dev& d, double spin0, double* off = nullptr) const {
+    const Geo& g = geo[i];
+    Pose X = grind_tool_pose(g.p, g.n, g.t, f, x_ref, g.extra, lead + d.lead, tilt + d.tilt,
+                             spin0 + d.spin, radius, length, tip_depth, off);
+    X.translation() += g.lift * f;
+    return X;
+  }
+
+  // IK of sample i on branch `branch`, continuing from `ref` (first: no continuity checks).
+  Node solve(std::size_t i, const Dev& d, double spin0, int branch, const Vector6& ref,
+             bool first) const {
+    Node node;
+    const Pose X_BT = X_BC * pose_C(i, d, spin0);
+    IkParams ip;
+    ip.q_ref = ref;
+    const IkResult res = ik_tool(robot, X_BT, ip);
+    for (const auto& sol : res.solutions) {
+      if (sol.branch.index() != branch) continue;
+      node.has_q = true;
+      node.q = sol.q;
+      break;
+    }
+    if (node.has_q) {
+      node.status = NodeStatus::kOk;
+      // A joint the IK moved to another 2π-equivalent to stay within its range: the continuous
+      // motion would leave the range there.
+      if (!first) {
+        for (int j = 0; j < kNumJoints; ++j) {
+          const double c = unwrap_near(node.q[j], ref[j]);
+          const double ex = limit_excess(robot.limits[j], c);
+          if (ex > 0 && (node.status != NodeStatus::kJointLimit || ex > node.value)) {
+            node.status = NodeStatus::kJointLimit;
+            node.joint = j;
+            node.value = ex;
+          }
+        }
+        if (node.status == NodeStatus::kOk) {
+          const Vector6 step = (node.q - ref).cwiseAbs();
+          int j = 0;
+          const double m = step.maxCoeff(&j);
+          if (m > P.max_joint_jump) {
+            node.status = NodeStatus::kJump;
+            node.joint = j;
+            node.value = m;
+          }
+        }
+      }
+      node.manip = manipulability(robot, node.q);
+      if (node.status == NodeStatus::kOk && !(node.manip >= P.manipulability_threshold))
+        node.status = NodeStatus::kLowManip;
+      return node;
+    }
+    // No solution on this branch within the limits: find out why.
+    ip.within_limits_only = false;
+    const IkResult all = ik_tool(robot, X_BT, ip);
+    if (all.solutions.empty()) {
+      node.status = NodeStatus::kUnreachable;
+      node.info = all.message;
+      return node;
+    }
+    for (const auto& sol : all.solutions) {
+      if (sol.branch.index() != branch) continue;
+      node.status = NodeStatus::kJointLimit;
+      node.value = 0;
+      for (int j = 0; j < kNumJoints; ++j) {
+        // Continuous value next to the reference; at the first sample the best equivalent.
+        double ex = 0;
+        if (!first) {
+          ex = limit_excess(robot.limits[j], unwrap_near(sol.q[j], ref[j]));
+        } else {
+          ex = std::numeric_limits<double>::infinity();
+          for (int k = -2; k <= 2; ++k)
+            ex = std::min(ex, limit_excess(robot.limits[j],
+                                           std::remainder(sol.q[j], 2 * M_PI) + 2 * M_PI * k));
+        }
+        if (ex > node.value) {
+          node.value = ex;
+          node.joint = j;
+        }
+      }
+      node.q = sol.q;
+      node.manip = manipulability(robot, sol.q);
+      return node;
+    }
+    node.status = NodeStatus::kBranchLost;
+    node.info = all.message;
+    return node;
+  }
+
+  // Follows `branch` over samples a..b into out[0..b−a]; sample a continues from `ref` (or starts
+  // fresh when a == 0). With early_exit, stops at the first bad sample and returns its index.
+  // Returns −1 when every sample is ok.
+  long track(const std::vector<Dev>& dev, double spin0, int branch, Vector6 ref, std::size_t a,
+             std::size_t b, std::vector<Node>& out, bool early_exit) const {
+    out.resize(b - a + 1);
+    long first_bad = -1;
+    for (std::size_t i = a; i <= b; ++i) {
+      Node node = solve(i, dev[i], spin0, branch, ref, i == 0);
+      if (node.has_q && (node.status == NodeStatus::kOk || node.status == NodeStatus::kLowManip ||
+                         node.status == NodeStatus::kJump))
+        ref = node.q;
+      const bool bad = node.status != NodeStatus::kOk;
+      out[i - a] = std::move(node);
+      if (bad && first_bad < 0) {
+        first_bad = static_cast<long>(i);
+        if (early_exit) break;
+      }
+    }
+    return first_bad;
+  }
+};
+
+// One seed: an IK solution of the first pose (its branch) under one base spin.
+struct Seed {
+  int branch = 0;
+  double spin0 = 0;
+  Vector6 q0 = Vector6::Zero();
+};
+
+// What tracking one seed produced.
+struct SeedOutcome {
+  bool complete = false;
+  std::vector<Node> nodes;
+  std::vector<Dev> dev;
+  std::vector<ReorientedRange> ranges;
+  // Failure (complete == false).
+  std::size_t fail_sample = 0;
+  Node fail_node;
+  std::size_t range_first = 0;  // the unfixable range's first bad sample
+  // Score (complete == true).
+  double min_manip = 0, margin = 0;
+};
+
+// Re-orientation candidates in the order tried: rotations about the tool axis (free for an
+// axisymmetric burr), then growing leans of the axis in eight directions of (lead, tilt).
+struct Candidate {
+  Dev d;
+  int level = 0;  // 0: spin; k ≥ 1: lean magnitude step k
+};
+
+std::vector<Candidate> candidates(const GrindParams& P) {
+  std::vector<Candidate> c;
+  for (int k = 1; k <= 6; ++k) {
+    c.push_back({{0, 0, k * M_PI / 6}, 0});
+    if (k < 6) c.push_back({{0, 0, -k * M_PI / 6}, 0});
+  }
+  if (P.max_extra_tilt > 0) {
+    for (int k = 1; k <= P.reorient_steps; ++k) {
+      const double m = P.max_extra_tilt * k / P.reorient_steps;
+      static const double kDirs[8] = {0, 180, 90, 270, 45, 135, 225, 315};
+      for (double deg : kDirs) {
+        const double a = deg * M_PI / 180;
+        c.push_back({{m * std::cos(a), m * std::sin(a), 0}, k});
+      }
+    }
+  }
+  return c;
+}
+
+// A re-orientation tried on one bad range: the candidate faded in over `blend` before the range
+// and out after it (weights w over the window wa..wb).
+struct Fix {
+  bool ok = false;
+  Dev d;
+  int level = 0;
+  double blend = 0, min_manip = 0;
+  std::size_t wa = 0, wb = 0;
+  std::vector<double> w;
+  std::vector<Node> nodes;  // the window's IK nodes under the fix
+};
+
+// Tries `cand` on the bad range a..b of `out`, with the fade lengthened (×2, ×4) when the wrist
+// cannot follow it within max_joint_jump per sample (a jump inside the fade).
+Fix try_fix(const Context& C, const Seed& seed, const SeedOutcome& out, std::size_t a,
+            std::size_t b, const Candidate& cand) {
+  const std::size_t N = C.geo.size();
+  Fix fix;
+  fix.d = cand.d;
+  fix.level = cand.level;
+  std::vector<Dev> trial = out.dev;
+  for (double mult : {1.0, 2.0, 4.0}) {
+    const double bl = C.P.blend_length * mult;
+    std::size_t wa = a, wb = b;
+    while (wa > 0 && C.s_nom[wa - 1] > C.s_nom[a] - bl) --wa;
+    while (wb + 1 < N && C.s_nom[wb + 1] < C.s_nom[b] + bl) ++wb;
+    fix.w.assign(wb - wa + 1, 1.0);
+    for (std::size_t i = wa; i <= wb; ++i) {
+      double& wi = fix.w[i - wa];
+      if (i < a) wi = smoothstep((C.s_nom[i] - (C.s_nom[a] - bl)) / bl);
+      if (i > b) wi = smoothstep(((C.s_nom[b] + bl) - C.s_nom[i]) / bl);
+      trial[i].lead = out.dev[i].lead + wi * cand.d.lead;
+      trial[i].tilt = out.dev[i].tilt + wi * cand.d.tilt;
+      trial[i].spin = out.dev[i].spin + wi * cand.d.spin;
+    }
+    const Vector6 ref = wa == 0 ? seed.q0 : out.nodes[wa - 1].q;
+    const long bad = C.track(trial, seed.spin0, seed.branch, ref, wa, wb, fix.nodes, true);
+    if (bad < 0) {
+      fix.ok = true;
+      fix.blend = bl;
+      fix.wa = wa;
+      fix.wb = wb;
+      fix.min_manip = std::numeric_limits<double>::infinity();
+      for (const Node& nd : fix.nodes) fix.min_manip = std::min(fix.min_manip, nd.manip);
+      return fix;
+    }
+    const auto ib = static_cast<std::size_t>(bad);
+    const bool jump_in_fade = fix.nodes[ib - wa].status == NodeStatus::kJump && (ib < a || ib > b);
+    if (!jump_in_fade) break;
+    for (std::size_t i = wa; i <= wb; ++i) trial[i] = out.dev[i];  // undo before widening
+  }
+  fix.ok = false;
+  return fix;
+}
+
+// Tracks one seed over all samples, re-orienting bad ranges.
+SeedOutcome track_seed(const Context& C, const Seed& seed, const std::vector<Candidate>& cands) {
+  const std::size_t N = C.geo.size();
+  const GrindParams& P = C.P;
+  SeedOutcome out;
+  out.dev.assign(N, Dev{});
+  C.track(out.dev, seed.spin0, seed.branch, seed.q0, 0, N - 1, out.nodes, false);
+
+  for (int round = 0; round < 3; ++round) {
+    // Bad ranges, merged when their blend windows would overlap.
+    std::vector<std::pair<std::size_t, std::size_t>> ranges;
+    for (std::size_t i = 0; i < N; ++i) {
+      if (out.nodes[i].status == NodeStatus::kOk) continue;
+      if (!ranges.empty() && C.s_nom[i] - C.s_nom[ranges.back().second] < 2 * P.blend_length)
+        ranges.back().second = i;
+      else
+        ranges.push_back({i, i});
+    }
+    if (ranges.empty()) {
+      out.complete = true;
+      break;
+    }
+    if (round == 2) ranges.resize(1);  // last round: only report
+    for (const auto& [a, b] : ranges) {
+      // The worst bad sample of the range (first of the most severe kind) for reports.
+      std::size_t worst = a;
+      double nominal_min = std::numeric_limits<double>::infinity();
+      for (std::size_t i = a; i <= b; ++i) {
+        const Node& nd = out.nodes[i];
+        if (severity(nd.status) > severity(out.nodes[worst].status)) worst = i;
+        nominal_min = std::min(nominal_min, nd.has_q ? nd.manip : 0.0);
+      }
+      const NodeStatus worst_status = out.nodes[worst].status;
+      bool fixed = false;
+      if (round < 2) {
+        // Candidates by level; spins: the first that works; leans: the best of the level.
+        Fix best;
+        for (const Candidate& cand : cands) {
+          if (best.ok && cand.level != best.level) break;  // smallest working level only
+          Fix fix = try_fix(C, seed, out, a, b, cand);
+          if (fix.ok && (!best.ok || fix.min_manip > best.min_manip)) best = std::move(fix);
+          if (best.ok && cand.level == 0) break;
+        }
+        if (best.ok) {
+          for (std::size_t i = best.wa; i <= best.wb; ++i) {
+            const double wi = best.w[i - best.wa];
+            out.dev[i].lead += wi * best.d.lead;
+            out.dev[i].tilt += wi * best.d.tilt;
+            out.dev[i].spin += wi * best.d.spin;
+            out.nodes[i] = best.nodes[i - best.wa];
+          }
+          ReorientedRange rr;
+          rr.reason = reason_of(worst_status);
+          rr.first_sample = a;
+          rr.last_sample = b;
+          rr.first_path_index = C.geo[a].path_index;
+          rr.last_path_index = C.geo[b].path_index;
+          rr.pass = C.geo[a].pass;
+          rr.nominal_min_manipulability = nominal_min;
+          rr.min_manipulability = best.min_manip;
+          rr.extra_lead = best.d.lead;
+          rr.extra_tilt = best.d.tilt;
+          rr.extra_spin = best.d.spin;
+          rr.blend_length = best.blend;
+          out.ranges.push_back(rr);
+          fixed = true;
+        }
+      }
+      if (!fixed) {
+        out.fail_sample = worst;
+        out.fail_node = out.nodes[worst];
+        out.range_first = a;
+        return out;
+      }
+    }
+    // Re-track everything with the re-orientations (the windows' ends must still join).
+    C.track(out.dev, seed.spin0, seed.branch, seed.q0, 0, N - 1, out.nodes, false);
+  }
+  FT_ASSERT(out.complete);  // round 2 either finds nothing or returns a failure
+  out.min_manip = std::numeric_limits<double>::infinity();
+  out.margin = std::numeric_limits<double>::infinity();
+  for (const Node& nd : out.nodes) {
+    out.min_manip = std::min(out.min_manip, nd.manip);
+    for (int j = 0; j < kNumJoints; ++j)
+      out.margin = std::min({out.margin, nd.q[j] - C.robot.limits[j].lower,
+                             C.robot.limits[j].upper - nd.q[j]});
+  }
+  return out;
+}
+
+void check_finite(const Vec3& v, const std::string& what) {
+  if (!v.allFinite())
+    throw ArgumentError(strf("%s: expected finite coordinates, got %s", what.c_str(),
+                             vec_text(v).c_str()));
+}
+
+void check_param(bool ok, const char* field, const char* expected, double got) {
+  if (!ok) throw ArgumentError(strf("GrindParams.%s: expected %s, got %g", field, expected, got));
+}
+
+}  // namespace
+
+Pose grind_tool_pose(const Vec3& p, const Vec3& n, const Vec3& t, const Vec3& f,
+                     const Vec3& x_ref, double extra_offset, double lead, double tilt,
+                     double spin, double radius, double length, double tip_depth,
+                     double* axis_offset) {
+  // Shank direction (tip → flange) and the tool axis z_T.
+  const Vec3 w = std::cos(tilt) * (std::cos(lead) * f + std::sin(lead) * t) + std::sin(tilt) * n;
+  const Vec3 z = -w.normalized();
+  // Smallest axis offset keeping the whole cutting length out of the wall plane.
+  const double c = z.dot(n);
+  const double off = extra_offset + radius * std::sqrt(std::max(0.0, 1 - c * c)) -
+                     std::min(tip_depth * c, (tip_depth - length) * c);
+  if (axis_offset) *axis_offset = off;
+  Vec3 x = x_ref - x_ref.dot(z) * z;
+  if (x.norm() < 1e-9) x = z.unitOrthogonal();
+  x.normalize();
+  x = std::cos(spin) * x + std::sin(spin) * z.cross(x);
+  Pose X = Pose::Identity();
+  X.linear().col(0) = x;
+  X.linear().col(1) = z.cross(x);
+  X.linear().col(2) = z;
+  X.translation() = p + off * n + tip_depth * z;
+  return X;
+}
+
+GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPath& path,
+                       const GrindParams& P) {
+  // ---- Input checks (bad input throws).
+  check_param(P.spacing > 0 && std::isfinite(P.spacing), "spacing", "> 0 [m]", P.spacing);
+  check_param(P.feed > 0 && std::isfinite(P.feed), "feed", "> 0 [m/s]", P.feed);
+  check_param(P.approach_feed > 0 && std::isfinite(P.approach_feed), "approach_feed", "> 0 [m/s]",
+              P.approach_feed);
+  check_param(P.approach_distance >= 0 && std::isfinite(P.approach_distance), "approach_distance",
+              ">= 0 [m]", P.approach_distance);
+  check_param(std::abs(P.lead) < M_PI / 2, "lead", "|lead| < pi/2 [rad]", P.lead);
+  check_param(std::abs(P.tilt) < M_PI / 2, "tilt", "|tilt| < pi/2 [rad]", P.tilt);
+  check_param(P.max_depth_of_cut > 0 && std::isfinite(P.max_depth_of_cut), "max_depth_of_cut",
+              "> 0 [m]", P.max_depth_of_cut);
+  check_param(P.manipulability_threshold >= 0, "manipulability_threshold", ">= 0",
+              P.manipulability_threshold);
+  check_param(P.max_extra_tilt >= 0 && P.max_extra_tilt <= M_PI / 4, "max_extra_tilt",
+              "0..pi/4 [rad]", P.max_extra_tilt);
+  check_param(P.reorient_steps >= 1, "reorient_steps", ">= 1", P.reorient_steps);
+  check_param(P.blend_length > 0, "blend_length", "> 0 [m]", P.blend_length);
+  check_param(P.spin_candidates >= 1 && P.spin_candidates <= 64, "spin_candidates", "1..64",
+              P.spin_candidates);
+  check_param(P.max_joint_jump > 0, "max_joint_jump", "> 0 [rad]", P.max_joint_jump);
+  check_param((P.branch_mask & 0xFFu) != 0, "branch_mask", "at least one of bits 0..7",
+              P.branch_mask);
+  if (!ik_supported(robot))
+    throw ArgumentError("robot '" + robot.name +
+                        "': expected a PUMA-type D-H table the analytic IK handles");
+  const double radius = robot.tool.radius, length = robot.tool.length;
+  if (!(radius > 0) || !(length > 0))
+    throw ArgumentError(strf("robot tool: expected radius > 0 and length > 0 [m], got %g and %g",
+                             radius, length));
+  const double tip_depth = P.tip_depth.value_or(length / 2);
+  check_param(tip_depth >= 0 && tip_depth <= length, "tip_depth", "0..tool length [m]", tip_depth);
+  const std::size_t N0 = path.points_C.size();
+  if (path.normals_C.size() != N0)
+    throw ArgumentError(strf("GrindPath.normals_C: expected %zu normals (one per point), got %zu",
+                             N0, path.normals_C.size()));
+  check_finite(path.fin_normal_C, "GrindPath.fin_normal_C");
+  if (!(path.fin_normal_C.norm() > 1e-12))
+    throw ArgumentError("GrindPath.fin_normal_C: expected a non-zero vector, got (0, 0, 0)");
+  if (!(path.fin_height >= 0) || !std::isfinite(path.fin_height))
+    throw ArgumentError(strf("GrindPath.fin_height: expected >= 0 [m], got %g", path.fin_height));
+  const Vec3 f = path.fin_normal_C.normalized();
+  std::vector<Vec3> wall(N0);
+  for (std::size_t i = 0; i < N0; ++i) {
+    check_finite(path.points_C[i], strf("GrindPath.points_C[%zu]", i));
+    check_finite(path.normals_C[i], strf("GrindPath.normals_C[%zu]", i));
+    const Vec3& n = path.normals_C[i];
+    const Vec3 np = n - n.dot(f) * f;
+    if (!(n.norm() > 1e-12) || np.norm() < 0.1 * n.norm())
+      throw ArgumentError(strf("GrindPath.normals_C[%zu]: expected a wall normal at least 5.7 deg "
+                               "away from the fin normal, got %s",
+                               i, vec_text(n).c_str()));
+    wall[i] = np.normalized();
+  }
+
+  // ---- Thin the points to at least `spacing` apart (the spline rejects duplicates).
+  std::vector<std::size_t> kept;
+  for (std::size_t i = 0; i < N0; ++i) {
+    if (kept.empty() || (path.points_C[i] - path.points_C[kept.back()]).norm() >= P.spacing)
+      kept.push_back(i);
+    else if (!path.closed && i + 1 == N0 && kept.size() > 1)
+      kept.back() = i;  // keep the true end of an open path
+  }
+  if (path.closed)
+    while (kept.size() > 1 &&
+           (path.points_C[kept.back()] - path.points_C[kept.front()]).norm() < P.spacing)
+      kept.pop_back();
+  const std::size_t min_points = path.closed ? 6 : 2;
+  if (kept.size() < min_points)
+    throw ArgumentError(strf("GrindPath.points_C: expected at least %zu points %g m apart for a "
+                             "%s path, got %zu of %zu",
+                             min_points, P.spacing, path.closed ? "closed" : "open", kept.size(),
+                             N0));
+  std::vector<Vec3> pts;
+  for (std::size_t k : kept) pts.push_back(path.points_C[k]);
+
+  // ---- Quintic B-spline and arc-length samples.
+  BSplineParams bp;
+  bp.closed = path.closed;
+  const BSplineResult spline = interpolate_quintic(pts, bp);
+  const CurveView cv = view(spline.curve);
+  const ArcLengthTable table = arc_length_table(cv);
+  const double total = table.length();
+  const auto n_samples =
+      static_cast<std::size_t>(std::max(1.0, std::ceil(total / P.spacing - 1e-9)));
+  const std::vector<double>& up = spline.curve.params;
+  const std::size_t K = pts.size();
+  struct PathSample {
+    Vec3 p, n, t;
+    int path_index = 0;
+  };
+  std::vector<PathSample> ps(n_samples + 1);
+  for (std::size_t k = 0; k <= n_samples; ++k) {
+    const double s = total * static_cast<double>(k) / static_cast<double>(n_samples);
+    const double u = param_at_arc_length(cv, table, s);
+    const CurveDerivs d = cv.derivatives(u, 1);
+    // Bracketing input points and the weight of the second.
+    std::size_t j = static_cast<std::size_t>(
+        std::upper_bound(up.begin(), up.end(), u) - up.begin());
+    j = j == 0 ? 0 : j - 1;
+    if (!path.closed && j + 1 >= K) j = K - 2;
+    const std::size_t j1 = (j + 1) % K;
+    const double u0 = up[j], u1 = j + 1 < K ? up[j + 1] : 1.0;
+    const double wgt = u1 > u0 ? std::clamp((u - u0) / (u1 - u0), 0.0, 1.0) : 0.0;
+    Vec3 n = (1 - wgt) * wall[kept[j]] + wgt * wall[kept[j1]];
+    n -= n.dot(f) * f;
+    if (n.norm() < 1e-6) n = wgt < 0.5 ? wall[kept[j]] : wall[kept[j1]];
+    n.normalize();
+    Vec3 t = n.cross(f);
+    if (t.dot(d[1]) < 0) t = -t;
+    // Nearest input point among those between the bracketing kept points.
+    const std::size_t i0 = kept[j], i1 = kept[j1];
+    std::size_t best = i0;
+    double best_d = (path.points_C[i0] - d[0]).norm();
+    for (std::size_t i = i0;; i = (i + 1) % N0) {
+      const double di = (path.points_C[i] - d[0]).norm();
+      if (di < best_d) {
+        best_d = di;
+        best = i;
+      }
+      if (i == i1) break;
+    }
+    ps[k] = {d[0], n, t, static_cast<int>(best)};
+  }
+
+  // ---- Passes: equal radial depths, the last with the cutter against the wall.
+  GrindResult res;
+  res.passes = path.fin_height > 0
+                   ? std::max(1, static_cast<int>(std::ceil(path.fin_height / P.max_depth_of_cut -
+                                                            1e-9)))
+                   : 1;
+  for (int j = 0; j < res.passes; ++j)
+    res.pass_offsets.push_back(path.fin_height * (res.passes - 1 - j) / res.passes);
+
+  // ---- The whole motion as one sample sequence: approach, passes joined by links, retract.
+  Context C{robot, P, X_BC, f, ps[0].t, radius, length, tip_depth, P.lead, P.tilt, {}, {}};
+  struct SegDraft {
+    SampleKind kind;
+    int pass;
+    std::size_t first, last;
+  };
+  std::vector<SegDraft> segs;
+  auto cut_geo = [&](int pass, std::size_t k) {
+    // Open paths alternate direction from pass to pass (no traverse back through the air).
+    const bool reverse = !path.closed && (pass % 2 == 1);
+    const PathSample& q = ps[reverse ? n_samples - k : k];
+    Geo g;
+    g.p = q.p;
+    g.n = q.n;
+    g.t = reverse ? Vec3(-q.t) : q.t;
+    g.extra = res.pass_offsets[static_cast<std::size_t>(pass)];
+    g.kind = SampleKind::kCut;
+    g.pass = pass;
+    g.path_index = q.path_index;
+    return g;
+  };
+  const auto lift_steps = static_cast<std::size_t>(
+      std::max(1.0, std::ceil(P.approach_distance / P.spacing - 1e-9)));
+  if (P.approach_distance > 0) {
+    for (std::size_t i = 0; i < lift_steps; ++i) {
+      Geo g = cut_geo(0, 0);
+      g.kind = SampleKind::kApproach;
+      g.lift = P.approach_distance * (1 - static_cast<double>(i) / lift_steps);
+      C.geo.push_back(g);
+    }
+    segs.push_back({SampleKind::kApproach, 0, 0, lift_steps});
+  }
+  // Neighbouring segments share their junction sample: the approach ends on the first cut
+  // sample, a link starts on a pass's last sample and ends on the next pass's first.
+  for (int pass = 0; pass < res.passes; ++pass) {
+    if (pass > 0) {
+      // Radial step-in from the previous pass's end to the next pass's start (same point).
+      const Geo end = C.geo.back();
+      const double de = end.extra - res.pass_offsets[static_cast<std::size_t>(pass)];
+      const auto m =
+          static_cast<std::size_t>(std::max(1.0, std::ceil(de / P.spacing - 1e-9)));
+      const std::size_t first = C.geo.size() - 1;
+      for (std::size_t i = 1; i < m; ++i) {
+        Geo g = cut_geo(pass, 0);
+        g.kind = SampleKind::kLink;
+        g.extra = end.extra - de * static_cast<double>(i) / static_cast<double>(m);
+        C.geo.push_back(g);
+      }
+      segs.push_back({SampleKind::kLink, pass, first, C.geo.size()});
+    }
+    const std::size_t first = C.geo.size();
+    for (std::size_t k = 0; k <= n_samples; ++k) C.geo.push_back(cut_geo(pass, k));
+    segs.push_back({SampleKind::kCut, pass, first, C.geo.size() - 1});
+  }
+  if (P.approach_distance > 0) {
+    const std::size_t first = C.geo.size() - 1;
+    const Geo end = C.geo.back();
+    for (std::size_t i = 1; i <= lift_steps; ++i) {
+      Geo g = end;
+      g.kind = SampleKind::kRetract;
+      g.lift = P.approach_distance * static_cast<double>(i) / lift_steps;
+      C.geo.push_back(g);
+    }
+    segs.push_back({SampleKind::kRetract, res.passes - 1, first, C.geo.size() - 1});
+  }
+  const std::size_t N = C.geo.size();
+  // Nominal tool path length (the blend windows are measured in it).
+  C.s_nom.assign(N, 0.0);
+  {
+    Vec3 prev = C.pose_C(0, Dev{}, 0).translation();
+    for (std::size_t i = 1; i < N; ++i) {
+      const Vec3 cur = C.pose_C(i, Dev{}, 0).translation();
+      C.s_nom[i] = C.s_nom[i - 1] + std::max((cur - prev).norm(), 1e-9);
+      prev = cur;
+    }
+  }
+
+  // ---- Seeds: every allowed IK solution of the first pose under every base spin.
+  std::vector<Seed> seeds;
+  Node first_fail;  // why the first pose has no seed at all
+  for (int k = 0; k < P.spin_candidates; ++k) {
+    const double spin0 = 2 * M_PI * k / P.spin_candidates;
+    const Pose X_BT = X_BC * C.pose_C(0, Dev{}, spin0);
+    const IkResult r = ik_tool(robot, X_BT);
+    for (const auto& sol : r.solutions)
+      if (P.branch_mask & (1u << sol.branch.index()))
+        seeds.push_back({sol.branch.index(), spin0, sol.q});
+  }
+  const std::vector<Candidate> cands = candidates(P);
+  std::vector<SeedOutcome> outcomes;
+  for (const Seed& sd : seeds) outcomes.push_back(track_seed(C, sd, cands));
+  res.seeds_tried = static_cast<int>(seeds.size());
+
+  // ---- Choose: complete seeds within 10 % of the best minimum manipulability, then the fewest
+  // re-orientations, then the largest joint-limit margin, then the first.
+  int chosen = -1;
+  double best_manip = -1;
+  for (const auto& o : outcomes)
+    if (o.complete) {
+      ++res.seeds_completed;
+      best_manip = std::max(best_manip, o.min_manip);
+    }
+  for (std::size_t k = 0; k < outcomes.size(); ++k) {
+    const auto& o = outcomes[k];
+    if (!o.complete || o.min_manip < 0.9 * best_manip) continue;
+    if (chosen < 0) {
+      chosen = static_cast<int>(k);
+      continue;
+    }
+    const auto& c = outcomes[static_cast<std::size_t>(chosen)];
+    if (o.ranges.size() < c.ranges.size() ||
+        (o.ranges.size() == c.ranges.size() && o.margin > c.margin + 1e-9))
+      chosen = static_cast<int>(k);
+  }
+
+  // ---- Samples (final poses when a seed completed, nominal ones otherwise).
+  const SeedOutcome* best = chosen >= 0 ? &outcomes[static_cast<std::size_t>(chosen)] : nullptr;
+  int report = -1;  // failing seed to report: the one that got farthest
+  if (!best)
+    for (std::size_t k = 0; k < outcomes.size(); ++k)
+      if (report < 0 || outcomes[k].fail_sample >
+                            outcomes[static_cast<std::size_t>(report)].fail_sample)
+        report = static_cast<int>(k);
+  const SeedOutcome* shown = best ? best : (report >= 0 ? &outcomes[static_cast<std::size_t>(report)]
+                                                        : nullptr);
+  const double spin0 = best ? seeds[static_cast<std::size_t>(chosen)].spin0
+                            : (report >= 0 ? seeds[static_cast<std::size_t>(report)].spin0 : 0.0);
+  res.samples.resize(N);
+  for (std::size_t i = 0; i < N; ++i) {
+    GrindSample& gs = res.samples[i];
+    const Dev d = best ? best->dev[i] : Dev{};
+    gs.kind = C.geo[i].kind;
+    gs.pass = C.geo[i].pass;
+    gs.path_index = C.geo[i].path_index;
+    gs.X_CT = C.pose_C(i, d, spin0, &gs.axis_offset);
+    gs.X_BT = X_BC * gs.X_CT;
+    gs.extra_lead = d.lead;
+    gs.extra_tilt = d.tilt;
+    gs.extra_spin = d.spin;
+    if (shown && shown->nodes[i].has_q) {
+      gs.q = shown->nodes[i].q;
+      gs.manipulability = shown->nodes[i].manip;
+    }
+    if (i > 0)
+      gs.s = res.samples[i - 1].s +
+             std::max((gs.X_BT.translation() - res.samples[i - 1].X_BT.translation()).norm(),
+                      1e-9);
+  }
+  res.base_spin = spin0;
+  for (const auto& sg : segs) {
+    GrindSegment g;
+    g.kind = sg.kind;
+    g.pass = sg.pass;
+    g.first_sample = sg.first;
+    g.last_sample = sg.last;
+    g.feed = sg.kind == SampleKind::kCut || sg.kind == SampleKind::kLink ? P.feed
+                                                                          : P.approach_feed;
+    res.segments.push_back(g);
+  }
+  res.path_length = res.samples.back().s;
+  for (const auto& g : res.segments)
+    if (g.kind == SampleKind::kCut || g.kind == SampleKind::kLink)
+      res.cut_length += res.samples[g.last_sample].s - res.samples[g.first_sample].s;
+
+  const auto where = [&](std::size_t i) {
+    const GrindSample& gs = res.samples[i];
+    return strf("path index %d (sample %zu, pass %d, %s)", gs.path_index, i, gs.pass,
+                to_string(gs.kind).c_str());
+  };
+  if (!best) {
+    // ---- Failure: no seed, or every seed stuck; report the one that got farthest.
+    std::size_t i = 0;
+    Node nd;
+    if (report < 0) {
+      // No allowed IK solution at the first pose: say why.
+      IkParams ip;
+      ip.within_limits_only = false;
+      const IkResult all = ik_tool(robot, res.samples[0].X_BT, ip);
+      if (all.solutions.empty()) {
+        nd.status = NodeStatus::kUnreachable;
+        nd.info = all.message;
+      } else {
+        nd.status = NodeStatus::kJointLimit;
+        nd.value = std::numeric_limits<double>::infinity();
+        for (const auto& sol : all.solutions) {
+          if (!(P.branch_mask & (1u << sol.branch.index()))) continue;
+          double worst = 0;
+          int wj = -1;
+          for (int j = 0; j < kNumJoints; ++j) {
+            double ex = std::numeric_limits<double>::infinity();
+            for (int k = -2; k <= 2; ++k)
+              ex = std::min(ex, limit_excess(robot.limits[j],
+                                             std::remainder(sol.q[j], 2 * M_PI) + 2 * M_PI * k));
+            if (ex > worst) {
+              worst = ex;
+              wj = j;
+            }
+          }
+          if (worst < nd.value) {
+            nd.value = worst;
+            nd.joint = wj;
+          }
+        }
+        if (nd.joint < 0) {
+          nd.status = NodeStatus::kBranchLost;
+          nd.info = "no IK solution on an allowed branch (branch_mask)";
+        }
+      }
+    } else {
+      i = shown->fail_sample;
+      nd = shown->fail_node;
+    }
+    res.status = status_of(nd.status);
+    res.failed_sample = static_cast<int>(i);
+    res.failed_path_index = res.samples[i].path_index;
+    res.failed_pass = res.samples[i].pass;
+    std::string why;
+    switch (nd.status) {
+      case NodeStatus::kUnreachable: why = "unreachable: " + nd.info; break;
+      case NodeStatus::kJointLimit: {
+        res.failed_joint = nd.joint;
+        res.failed_excess = nd.value;
+        int side = 0;
+        if (nd.has_q) limit_excess(robot.limits[nd.joint], nd.q[nd.joint], &side);
+        why = strf("joint %d beyond its %slimit by %.4f rad", nd.joint + 1,
+                   side > 0 ? "upper " : (side < 0 ? "lower " : ""), nd.value);
+        break;
+      }
+      case NodeStatus::kLowManip:
+        res.failed_excess = nd.manip;
+        why = strf("singular: manipulability %.3g below %.3g", nd.manip,
+                   P.manipulability_threshold);
+        break;
+      case NodeStatus::kJump:
+        res.failed_joint = nd.joint;
+        res.failed_excess = nd.value;
+        why = strf("joint %d jumps by %.3f rad (more than %.3f) between samples", nd.joint + 1,
+                   nd.value, P.max_joint_jump);
+        break;
+      default: why = "configuration branch lost: " + nd.info; break;
+    }
+    res.message = where(i) + ": " + why;
+    if (report >= 0) {
+      res.message += strf(" for every IK branch (%d tried) and re-orientation (spin about the "
+                          "tool axis, lean up to %.3f rad)",
+                          res.seeds_tried, P.max_extra_tilt);
+      if (shown->range_first < i)
+        res.message += strf("; the problems start at sample %zu (path index %d)",
+                            shown->range_first, res.samples[shown->range_first].path_index);
+    } else {
+      res.message += " at the first pose";
+    }
+    return res;
+  }
+
+  // ---- Success so far: branch, re-orientations, manipulability.
+  {
+    const int b = seeds[static_cast<std::size_t>(chosen)].branch;
+    res.branch.front = b < 4;
+    res.branch.elbow_up = (b & 2) == 0;
+    res.branch.flip = (b & 1) != 0;
+  }
+  res.reoriented_ranges = best->ranges;
+  res.min_manipulability = best->min_manip;
+
+  // ---- Time parametrization, one segment at a time (each starts and ends at rest).
+  for (auto& g : res.segments) {
+    std::vector<double> s;
+    std::vector<Vector6> q;
+    for (std::size_t i = g.first_sample; i <= g.last_sample; ++i) {
+      s.push_back(res.samples[i].s);
+      q.push_back(res.samples[i].q);
+    }
+    TimingParams tp = P.timing;
+    tp.feed = g.feed;
+    const TimingResult tr = time_parametrize(robot, s, q, tp);
+    if (!tr.ok()) {
+      const std::size_t i = g.first_sample + static_cast<std::size_t>(std::max(0, tr.failed_sample));
+      res.status = GrindStatus::kTimingFailed;
+      res.failed_sample = static_cast<int>(i);
+      res.failed_path_index = res.samples[i].path_index;
+      res.failed_pass = res.samples[i].pass;
+      res.failed_joint = tr.failed_joint;
+      res.failed_excess = tr.failed_excess;
+      res.message = where(i) + ": time parametrization failed (" + to_string(tr.status) +
+                    "): " + tr.message;
+      res.trajectory = JointTrajectory{};
+      return res;
+    }
+    JointTrajectory& T = res.trajectory;
+    const std::size_t n0 = T.t.empty() ? 0 : T.t.size() - 1;
+    const std::size_t skip = T.t.empty() ? 0 : 1;  // the shared rest sample
+    T.dt = tr.trajectory.dt;
+    for (std::size_t k = skip; k < tr.trajectory.size(); ++k) {
+      T.t.push_back(static_cast<double>(n0 + k) * T.dt);
+      T.q.push_back(tr.trajectory.q[k]);
+      T.dq.push_back(tr.trajectory.dq[k]);
+      T.ddq.push_back(tr.trajectory.ddq[k]);
+      T.s.push_back(tr.trajectory.s[k]);
+      T.sdot.push_back(tr.trajectory.sdot[k]);
+      T.sddot.push_back(tr.trajectory.sddot[k]);
+    }
+    g.first_step = n0;
+    g.last_step = T.t.size() - 1;
+    res.max_joint_velocity_ratio = std::max(res.max_joint_velocity_ratio,
+                                            tr.max_joint_velocity_ratio);
+    res.max_joint_accel_ratio = std::max(res.max_joint_accel_ratio, tr.max_joint_accel_ratio);
+    for (FeedReduction fr : tr.reductions) {
+      fr.first_sample += g.first_sample;
+      fr.last_sample += g.first_sample;
+      res.feed_reductions.push_back(fr);
+    }
+  }
+  res.total_time = res.trajectory.duration();
+  res.tcp_B.reserve(res.trajectory.size());
+  for (const auto& q : res.trajectory.q) res.tcp_B.push_back(fk_tool(robot, q));
+  return res;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Outputs
+
+std::string trajectory_csv(const GrindResult& result) {
+  std::string out = "t";
+  for (const char* p : {"q", "dq", "ddq"})
+    for (int j = 1; j <= kNumJoints; ++j) out += strf(",%s%d", p, j);
+  out += ",x,y,z,qw,qx,qy,qz\n";
+  const JointTrajectory& T = result.trajectory;
+  out.reserve(out.size() + T.size() * 320);
+  for (std::size_t k = 0; k < T.size(); ++k) {
+    out += strf("%.6f", T.t[k]);
+    for (const Vector6* v : {&T.q[k], &T.dq[k], &T.ddq[k]})
+      for (int j = 0; j < kNumJoints; ++j) out += strf(",%.9g", (*v)[j]);
+    if (k < result.tcp_B.size()) {
+      const Pose& X = result.tcp_B[k];
+      Eigen::Quaterniond q(X.linear());
+      if (q.w() < 0) q.coeffs() = -q.coeffs();
+      out += strf(",%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g", X.translation().x(),
+                  X.translation().y(), X.translation().z(), q.w(), q.x(), q.y(), q.z());
+    } else {
+      out += ",,,,,,,";
+    }
+    out += '\n';
+  }
+  return out;
+}
+
+namespace {
+
+std::string json_string(const std::string& s) {
+  std::string o = "\"";
+  for (char c : s) {
+    switch (c) {
+      case '"': o += "\\\""; break;
+      case '\\': o += "\\\\"; break;
+      case '\n': o += "\\n"; break;
+      case '\t': o += "\\t"; break;
+      default:
+        if (static_cast<unsigned char>(c) < 0x20)
+          o += strf("\\u%04x", c);
+        else
+          o += c;
+    }
+  }
+  return o + "\"";
+}
+
+std::string json_number(double v) { return std::isfinite(v) ? exact_number(v) : "null"; }
+
+}  // namespace
+
+std::string grind_summary_json(const GrindResult& r) {
+  std::string o = "{\n";
+  const auto kv = [&](const std::string& k, const std::string& v, bool last = false) {
+    o += "  " + json_string(k) + ": " + v + (last ? "\n" : ",\n");
+  };
+  kv("status", json_string(to_string(r.status)));
+  kv("message", json_string(r.message));
+  if (!r.ok()) {
+    kv("failed_sample", std::to_string(r.failed_sample));
+    kv("failed_path_index", std::to_string(r.failed_path_index));
+    kv("failed_pass", std::to_string(r.failed_pass));
+    kv("failed_joint", std::to_string(r.failed_joint));
+    kv("failed_excess", json_number(r.failed_excess));
+  }
+  kv("branch", json_string(r.ok() ? r.branch.name() : ""));
+  kv("base_spin_rad", json_number(r.base_spin));
+  kv("trajectory.max_joint_velocity_ratio", json_number(r.max_joint_velocity_ratio));
+  kv("trajectory.max_joint_accel_ratio", json_number(r.max_joint_accel_ratio));
+  kv("trajectory.min_manipulability", json_number(r.min_manipulability));
+  kv("trajectory.total_time_s", json_number(r.total_time));
+  kv("trajectory.path_length_m", json_number(r.path_length));
+  kv("trajectory.cut_length_m", json_number(r.cut_length));
+  kv("trajectory.passes", std::to_string(r.passes));
+  kv("trajectory.samples", std::to_string(r.samples.size()));
+  kv("trajectory.steps", std::to_string(r.trajectory.size()));
+  std::string arr = "[";
+  for (std::size_t k = 0; k < r.reoriented_ranges.size(); ++k) {
+    const auto& x = r.reoriented_ranges[k];
+    arr += strf("%s\n    {\"reason\": %s, \"first_sample\": %zu, \"last_sample\": %zu, "
+                "\"first_path_index\": %d, \"last_path_index\": %d, \"pass\": %d, "
+                "\"nominal_min_manipulability\": %s, \"min_manipulability\": %s, "
+                "\"extra_lead_rad\": %s, \"extra_tilt_rad\": %s, \"extra_spin_rad\": %s}",
+                k ? "," : "", json_string(to_string(x.reason)).c_str(), x.first_sample,
+                x.last_sample, x.first_path_index, x.last_path_index, x.pass,
+                json_number(x.nominal_min_manipulability).c_str(),
+                json_number(x.min_manipulability).c_str(), json_number(x.extra_lead).c_str(),
+                json_number(x.extra_tilt).c_str(), json_number(x.extra_spin).c_str());
+  }
+  arr += r.reoriented_ranges.empty() ? "]" : "\n  ]";
+  kv("trajectory.reoriented_ranges", arr);
+  arr = "[";
+  for (std::size_t k = 0; k < r.feed_reductions.size(); ++k) {
+    const auto& x = r.feed_reductions[k];
+    arr += strf("%s\n    {\"first_sample\": %zu, \"last_sample\": %zu, \"s_begin_m\": %s, "
+                "\"s_end_m\": %s, \"min_feed_m_s\": %s, \"nominal_feed_m_s\": %s, "
+                "\"joint\": %d, \"limit\": %s}",
+                k ? "," : "", x.first_sample, x.last_sample, json_number(x.s_begin).c_str(),
+                json_number(x.s_end).c_str(), json_number(x.min_feed).c_str(),
+                json_number(x.nominal_feed).c_str(), x.joint + 1,
+                json_string(to_string(x.limit)).c_str());
+  }
+  arr += r.feed_reductions.empty() ? "]" : "\n  ]";
+  kv("trajectory.feed_reductions", arr, true);
+  return o + "}\n";
+}
+
+Image plot_joint_trajectory(const JointTrajectory& T, JointQuantity quantity, int width,
+                            int height) {
+  static const Rgb kColors[6] = {{31, 119, 180}, {255, 127, 14}, {44, 160, 44},
+                                 {214, 39, 40},  {148, 103, 189}, {140, 86, 75}};
+  PlotSpec spec;
+  const char* sym = "q";
+  switch (quantity) {
+    case JointQuantity::kPosition:
+      spec.title = "Joint angles";
+      spec.ylabel = "q [rad]";
+      break;
+    case JointQuantity::kVelocity:
+      spec.title = "Joint velocities";
+      spec.ylabel = "dq/dt [rad/s]";
+      sym = "dq";
+      break;
+    case JointQuantity::kAcceleration:
+      spec.title = "Joint accelerations";
+      spec.ylabel = "d2q/dt2 [rad/s^2]";
+      sym = "ddq";
+      break;
+  }
+  spec.xlabel = "t [s]";
+  // At most ~4000 points per line: plenty for the pixel width.
+  const std::size_t stride = std::max<std::size_t>(1, T.size() / 4000);
+  for (int j = 0; j < kNumJoints; ++j) {
+    Series s;
+    s.color = kColors[j];
+    s.label = strf("%s%d", sym, j + 1);
+    s.size = 2;
+    for (std::size_t k = 0; k < T.size(); k += stride) {
+      const Vector6& v = quantity == JointQuantity::kPosition
+                             ? T.q[k]
+                             : (quantity == JointQuantity::kVelocity ? T.dq[k] : T.ddq[k]);
+      s.x.push_back(T.t[k]);
+      s.y.push_back(v[j]);
+    }
+    spec.series.push_back(std::move(s));
+  }
+  return render_plot(spec, width, height);
+}
+
+void write_grind_outputs(const GrindResult& result, const std::string& dir) {
+  ensure_directory(dir);
+  write_text_file(dir + "/trajectory.csv", trajectory_csv(result));
+  write_text_file(dir + "/grind_summary.json", grind_summary_json(result));
+  if (!result.ok() || result.trajectory.size() == 0) return;
+  write_png(dir + "/joint_positions.png",
+            plot_joint_trajectory(result.trajectory, JointQuantity::kPosition));
+  write_png(dir + "/joint_velocities.png",
+            plot_joint_trajectory(result.trajectory, JointQuantity::kVelocity));
+  write_png(dir + "/joint_accelerations.png",
+            plot_joint_trajectory(result.trajectory, JointQuantity::kAcceleration));
+}
+
+}  // namespace flashtwin::planner
