@@ -652,7 +652,9 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       for (std::size_t i = 0; i < t2.size(); ++i) tp[i] = t2.points[i].cast<double>();
     }
     for (auto& pl : order_polylines(tp, gap)) {
-      if (pl.points.size() < 3) continue;
+      double len = 0;
+      for (std::size_t i = 1; i < pl.points.size(); ++i) len += (pl.points[i] - pl.points[i - 1]).norm();
+      if (pl.points.size() < 3 || len < P.min_path_length) continue;
       FlashPath path;
       path.region = static_cast<int>(r);
       path.closed = pl.closed;
@@ -682,6 +684,10 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
         std::reverse(path.points_C.begin(), path.points_C.end());
         std::reverse(path.normals_C.begin(), path.normals_C.end());
       }
+      // Extent, not travel: a short zig-zag of boundary points is not a grinding line.
+      double extent = 0;
+      for (const auto& q : path.points_C) extent = std::max(extent, (q - path.points_C.front()).norm());
+      if (extent < P.min_path_length) continue;
       res.paths.push_back(std::move(path));
     }
   }

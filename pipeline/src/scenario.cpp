@@ -217,6 +217,7 @@ Scenario load_scenario(const std::string& path) {
       dp.inner_band = d.get_double("inner_band", 0, 0.05, dp.inner_band);
       dp.path_voxel = d.get_double("path_voxel", 1e-5, 0.05, dp.path_voxel);
       dp.gap = d.get_double("gap", 0, 0.5, dp.gap);
+      dp.min_path_length = d.get_double("min_path_length", 0, 1, dp.min_path_length);
       dp.smoothing = static_cast<int>(d.get_int("smoothing", 0, 100, dp.smoothing));
       dp.mid_plane = d.get_bool("mid_plane", dp.mid_plane);
     }

@@ -39,6 +39,7 @@ struct DetectionParams {
   double path_voxel = 0.4e-3;       ///< [m] improved voxel grid over the snapped path points
   double gap = 0;                   ///< [m] polylines split at gaps longer than this; 0:
                                     ///< max(4 × path_voxel, 4 × spacing across)
+  double min_path_length = 2e-3;    ///< [m] shorter pieces of grinding line are dropped
   int smoothing = 3;                ///< moving-average half window along polylines [points]
   bool mid_plane = true;            ///< shift the path from the fin's visible face to its
                                     ///< mid-plane (half the thickness seen at the fin's edge)
