@@ -15,32 +15,46 @@ namespace flashtwin::planner {
 
 std::string to_string(GrindStatus status) {
   switch (status) {
-    case GrindStatus::kOk: return "ok";
-    case GrindStatus::kUnreachable: return "unreachable";
-    case GrindStatus::kJointLimit: return "joint_limit";
-    case GrindStatus::kSingular: return "singular";
-    case GrindStatus::kDiscontinuous: return "discontinuous";
-    case GrindStatus::kTimingFailed: return "timing_failed";
+    case GrindStatus::kOk:
+      return "ok";
+    case GrindStatus::kUnreachable:
+      return "unreachable";
+    case GrindStatus::kJointLimit:
+      return "joint_limit";
+    case GrindStatus::kSingular:
+      return "singular";
+    case GrindStatus::kDiscontinuous:
+      return "discontinuous";
+    case GrindStatus::kTimingFailed:
+      return "timing_failed";
   }
   return "unknown";
 }
 
 std::string to_string(SampleKind kind) {
   switch (kind) {
-    case SampleKind::kApproach: return "approach";
-    case SampleKind::kCut: return "cut";
-    case SampleKind::kLink: return "link";
-    case SampleKind::kRetract: return "retract";
+    case SampleKind::kApproach:
+      return "approach";
+    case SampleKind::kCut:
+      return "cut";
+    case SampleKind::kLink:
+      return "link";
+    case SampleKind::kRetract:
+      return "retract";
   }
   return "unknown";
 }
 
 std::string to_string(ReorientReason reason) {
   switch (reason) {
-    case ReorientReason::kSingular: return "singular";
-    case ReorientReason::kJointLimit: return "joint_limit";
-    case ReorientReason::kUnreachable: return "unreachable";
-    case ReorientReason::kDiscontinuous: return "discontinuous";
+    case ReorientReason::kSingular:
+      return "singular";
+    case ReorientReason::kJointLimit:
+      return "joint_limit";
+    case ReorientReason::kUnreachable:
+      return "unreachable";
+    case ReorientReason::kDiscontinuous:
+      return "discontinuous";
   }
   return "unknown";
 }
@@ -57,7 +71,9 @@ std::string strf(const char* fmt, ...) {
   return buf;
 }
 
-std::string vec_text(const Vec3& v) { return strf("(%g, %g, %g)", v.x(), v.y(), v.z()); }
+std::string vec_text(const Vec3& v) {
+  return strf("(%g, %g, %g)", v.x(), v.y(), v.z());
+}
 
 // Quintic smoothstep: 0 → 1 with zero first and second derivatives at both ends.
 double smoothstep(double x) {
@@ -88,39 +104,53 @@ struct Node {
   bool has_q = false;  // q is a solution on the followed branch (possibly bad otherwise)
   Vector6 q = Vector6::Zero();
   double manip = 0;
-  int joint = -1;     // kJointLimit: the joint; kJump: the joint that jumps
-  double value = 0;   // kJointLimit: excess [rad]; kJump: the step [rad]
-  std::string info;   // IK message for kUnreachable
+  int joint = -1;    // kJointLimit: the joint; kJump: the joint that jumps
+  double value = 0;  // kJointLimit: excess [rad]; kJump: the step [rad]
+  std::string info;  // IK message for kUnreachable
 };
 
 // Severity for naming a bad range's cause (the first sample of the most severe kind).
 int severity(NodeStatus s) {
   switch (s) {
-    case NodeStatus::kUnreachable: return 4;
-    case NodeStatus::kJointLimit: return 3;
-    case NodeStatus::kLowManip: return 2;  // jumps and lost branches are its usual symptoms
-    case NodeStatus::kBranchLost: return 1;
-    case NodeStatus::kJump: return 1;
-    case NodeStatus::kOk: return 0;
+    case NodeStatus::kUnreachable:
+      return 4;
+    case NodeStatus::kJointLimit:
+      return 3;
+    case NodeStatus::kLowManip:
+      return 2;  // jumps and lost branches are its usual symptoms
+    case NodeStatus::kBranchLost:
+      return 1;
+    case NodeStatus::kJump:
+      return 1;
+    case NodeStatus::kOk:
+      return 0;
   }
   return 0;
 }
 
 ReorientReason reason_of(NodeStatus s) {
   switch (s) {
-    case NodeStatus::kLowManip: return ReorientReason::kSingular;
-    case NodeStatus::kUnreachable: return ReorientReason::kUnreachable;
-    case NodeStatus::kJointLimit: return ReorientReason::kJointLimit;
-    default: return ReorientReason::kDiscontinuous;
+    case NodeStatus::kLowManip:
+      return ReorientReason::kSingular;
+    case NodeStatus::kUnreachable:
+      return ReorientReason::kUnreachable;
+    case NodeStatus::kJointLimit:
+      return ReorientReason::kJointLimit;
+    default:
+      return ReorientReason::kDiscontinuous;
   }
 }
 
 GrindStatus status_of(NodeStatus s) {
   switch (s) {
-    case NodeStatus::kLowManip: return GrindStatus::kSingular;
-    case NodeStatus::kUnreachable: return GrindStatus::kUnreachable;
-    case NodeStatus::kJointLimit: return GrindStatus::kJointLimit;
-    default: return GrindStatus::kDiscontinuous;
+    case NodeStatus::kLowManip:
+      return GrindStatus::kSingular;
+    case NodeStatus::kUnreachable:
+      return GrindStatus::kUnreachable;
+    case NodeStatus::kJointLimit:
+      return GrindStatus::kJointLimit;
+    default:
+      return GrindStatus::kDiscontinuous;
   }
 }
 
@@ -302,11 +332,12 @@ std::vector<Candidate> candidates(const GrindParams& P) {
   if (P.max_extra_tilt > 0) {
     for (int k = 1; k <= P.reorient_steps; ++k) {
       const double m = P.max_extra_tilt * k / P.reorient_steps;
-      static const double kDirs[8] = {0, 180, 90, 270, 45, 135, 225, 315};
-      for (double deg : kDirs) {
-        const double a = deg * M_PI / 180;
-        c.push_back({{m * std::cos(a), m * std::sin(a), 0}, k});
-      }
+      // (lead, tilt) directions: pure lead first (keeps the cutter parallel to the wall), then
+      // pure tilt, then the diagonals.
+      const double h = std::sqrt(0.5);
+      const double dirs[8][2] = {{1, 0}, {-1, 0}, {0, 1},   {0, -1},
+                                 {h, h}, {-h, h}, {-h, -h}, {h, -h}};
+      for (const auto& d : dirs) c.push_back({{m * d[0], m * d[1], 0}, k});
     }
   }
   return c;
@@ -346,6 +377,8 @@ Fix try_fix(const Context& C, const Seed& seed, const SeedOutcome& out, std::siz
       trial[i].lead = out.dev[i].lead + wi * cand.d.lead;
       trial[i].tilt = out.dev[i].tilt + wi * cand.d.tilt;
       trial[i].spin = out.dev[i].spin + wi * cand.d.spin;
+      // Overlapping fixes add up: keep the total lean within the allowance.
+      if (std::hypot(trial[i].lead, trial[i].tilt) > C.P.max_extra_tilt + 1e-12) return fix;
     }
     const Vector6 ref = wa == 0 ? seed.q0 : out.nodes[wa - 1].q;
     const long bad = C.track(trial, seed.spin0, seed.branch, ref, wa, wb, fix.nodes, true);
@@ -451,16 +484,16 @@ SeedOutcome track_seed(const Context& C, const Seed& seed, const std::vector<Can
   for (const Node& nd : out.nodes) {
     out.min_manip = std::min(out.min_manip, nd.manip);
     for (int j = 0; j < kNumJoints; ++j)
-      out.margin = std::min({out.margin, nd.q[j] - C.robot.limits[j].lower,
-                             C.robot.limits[j].upper - nd.q[j]});
+      out.margin = std::min(
+          {out.margin, nd.q[j] - C.robot.limits[j].lower, C.robot.limits[j].upper - nd.q[j]});
   }
   return out;
 }
 
 void check_finite(const Vec3& v, const std::string& what) {
   if (!v.allFinite())
-    throw ArgumentError(strf("%s: expected finite coordinates, got %s", what.c_str(),
-                             vec_text(v).c_str()));
+    throw ArgumentError(
+        strf("%s: expected finite coordinates, got %s", what.c_str(), vec_text(v).c_str()));
 }
 
 void check_param(bool ok, const char* field, const char* expected, double got) {
@@ -469,10 +502,9 @@ void check_param(bool ok, const char* field, const char* expected, double got) {
 
 }  // namespace
 
-Pose grind_tool_pose(const Vec3& p, const Vec3& n, const Vec3& t, const Vec3& f,
-                     const Vec3& x_ref, double extra_offset, double lead, double tilt,
-                     double spin, double radius, double length, double tip_depth,
-                     double* axis_offset) {
+Pose grind_tool_pose(const Vec3& p, const Vec3& n, const Vec3& t, const Vec3& f, const Vec3& x_ref,
+                     double extra_offset, double lead, double tilt, double spin, double radius,
+                     double length, double tip_depth, double* axis_offset) {
   // Shank direction (tip → flange) and the tool axis z_T.
   const Vec3 w = std::cos(tilt) * (std::cos(lead) * f + std::sin(lead) * t) + std::sin(tilt) * n;
   const Vec3 z = -w.normalized();
@@ -522,8 +554,8 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
                         "': expected a PUMA-type D-H table the analytic IK handles");
   const double radius = robot.tool.radius, length = robot.tool.length;
   if (!(radius > 0) || !(length > 0))
-    throw ArgumentError(strf("robot tool: expected radius > 0 and length > 0 [m], got %g and %g",
-                             radius, length));
+    throw ArgumentError(
+        strf("robot tool: expected radius > 0 and length > 0 [m], got %g and %g", radius, length));
   const double tip_depth = P.tip_depth.value_or(length / 2);
   check_param(tip_depth >= 0 && tip_depth <= length, "tip_depth", "0..tool length [m]", tip_depth);
   const std::size_t N0 = path.points_C.size();
@@ -543,9 +575,10 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
     const Vec3& n = path.normals_C[i];
     const Vec3 np = n - n.dot(f) * f;
     if (!(n.norm() > 1e-12) || np.norm() < 0.1 * n.norm())
-      throw ArgumentError(strf("GrindPath.normals_C[%zu]: expected a wall normal at least 5.7 deg "
-                               "away from the fin normal, got %s",
-                               i, vec_text(n).c_str()));
+      throw ArgumentError(
+          strf("GrindPath.normals_C[%zu]: expected a wall normal at least 5.7 deg "
+               "away from the fin normal, got %s",
+               i, vec_text(n).c_str()));
     wall[i] = np.normalized();
   }
 
@@ -563,10 +596,10 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
       kept.pop_back();
   const std::size_t min_points = path.closed ? 6 : 2;
   if (kept.size() < min_points)
-    throw ArgumentError(strf("GrindPath.points_C: expected at least %zu points %g m apart for a "
-                             "%s path, got %zu of %zu",
-                             min_points, P.spacing, path.closed ? "closed" : "open", kept.size(),
-                             N0));
+    throw ArgumentError(
+        strf("GrindPath.points_C: expected at least %zu points %g m apart for a "
+             "%s path, got %zu of %zu",
+             min_points, P.spacing, path.closed ? "closed" : "open", kept.size(), N0));
   std::vector<Vec3> pts;
   for (std::size_t k : kept) pts.push_back(path.points_C[k]);
 
@@ -591,8 +624,8 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
     const double u = param_at_arc_length(cv, table, s);
     const CurveDerivs d = cv.derivatives(u, 1);
     // Bracketing input points and the weight of the second.
-    std::size_t j = static_cast<std::size_t>(
-        std::upper_bound(up.begin(), up.end(), u) - up.begin());
+    std::size_t j =
+        static_cast<std::size_t>(std::upper_bound(up.begin(), up.end(), u) - up.begin());
     j = j == 0 ? 0 : j - 1;
     if (!path.closed && j + 1 >= K) j = K - 2;
     const std::size_t j1 = (j + 1) % K;
@@ -621,10 +654,15 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
 
   // ---- Passes: equal radial depths, the last with the cutter against the wall.
   GrindResult res;
-  res.passes = path.fin_height > 0
-                   ? std::max(1, static_cast<int>(std::ceil(path.fin_height / P.max_depth_of_cut -
-                                                            1e-9)))
-                   : 1;
+  res.passes =
+      path.fin_height > 0
+          ? std::max(1, static_cast<int>(std::ceil(path.fin_height / P.max_depth_of_cut - 1e-9)))
+          : 1;
+  if (res.passes > 100)
+    throw ArgumentError(
+        strf("GrindPath.fin_height: expected at most 100 passes of "
+             "max_depth_of_cut %g m, got fin_height %g m (%d passes)",
+             P.max_depth_of_cut, path.fin_height, res.passes));
   for (int j = 0; j < res.passes; ++j)
     res.pass_offsets.push_back(path.fin_height * (res.passes - 1 - j) / res.passes);
 
@@ -650,8 +688,8 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
     g.path_index = q.path_index;
     return g;
   };
-  const auto lift_steps = static_cast<std::size_t>(
-      std::max(1.0, std::ceil(P.approach_distance / P.spacing - 1e-9)));
+  const auto lift_steps =
+      static_cast<std::size_t>(std::max(1.0, std::ceil(P.approach_distance / P.spacing - 1e-9)));
   if (P.approach_distance > 0) {
     for (std::size_t i = 0; i < lift_steps; ++i) {
       Geo g = cut_geo(0, 0);
@@ -668,8 +706,7 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
       // Radial step-in from the previous pass's end to the next pass's start (same point).
       const Geo end = C.geo.back();
       const double de = end.extra - res.pass_offsets[static_cast<std::size_t>(pass)];
-      const auto m =
-          static_cast<std::size_t>(std::max(1.0, std::ceil(de / P.spacing - 1e-9)));
+      const auto m = static_cast<std::size_t>(std::max(1.0, std::ceil(de / P.spacing - 1e-9)));
       const std::size_t first = C.geo.size() - 1;
       for (std::size_t i = 1; i < m; ++i) {
         Geo g = cut_geo(pass, 0);
@@ -749,11 +786,11 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
   int report = -1;  // failing seed to report: the one that got farthest
   if (!best)
     for (std::size_t k = 0; k < outcomes.size(); ++k)
-      if (report < 0 || outcomes[k].fail_sample >
-                            outcomes[static_cast<std::size_t>(report)].fail_sample)
+      if (report < 0 ||
+          outcomes[k].fail_sample > outcomes[static_cast<std::size_t>(report)].fail_sample)
         report = static_cast<int>(k);
-  const SeedOutcome* shown = best ? best : (report >= 0 ? &outcomes[static_cast<std::size_t>(report)]
-                                                        : nullptr);
+  const SeedOutcome* shown =
+      best ? best : (report >= 0 ? &outcomes[static_cast<std::size_t>(report)] : nullptr);
   const double spin0 = best ? seeds[static_cast<std::size_t>(chosen)].spin0
                             : (report >= 0 ? seeds[static_cast<std::size_t>(report)].spin0 : 0.0);
   res.samples.resize(N);
@@ -774,8 +811,7 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
     }
     if (i > 0)
       gs.s = res.samples[i - 1].s +
-             std::max((gs.X_BT.translation() - res.samples[i - 1].X_BT.translation()).norm(),
-                      1e-9);
+             std::max((gs.X_BT.translation() - res.samples[i - 1].X_BT.translation()).norm(), 1e-9);
   }
   res.base_spin = spin0;
   for (const auto& sg : segs) {
@@ -784,8 +820,7 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
     g.pass = sg.pass;
     g.first_sample = sg.first;
     g.last_sample = sg.last;
-    g.feed = sg.kind == SampleKind::kCut || sg.kind == SampleKind::kLink ? P.feed
-                                                                          : P.approach_feed;
+    g.feed = sg.kind == SampleKind::kCut || sg.kind == SampleKind::kLink ? P.feed : P.approach_feed;
     res.segments.push_back(g);
   }
   res.path_length = res.samples.back().s;
@@ -847,7 +882,9 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
     res.failed_pass = res.samples[i].pass;
     std::string why;
     switch (nd.status) {
-      case NodeStatus::kUnreachable: why = "unreachable: " + nd.info; break;
+      case NodeStatus::kUnreachable:
+        why = "unreachable: " + nd.info;
+        break;
       case NodeStatus::kJointLimit: {
         res.failed_joint = nd.joint;
         res.failed_excess = nd.value;
@@ -859,8 +896,8 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
       }
       case NodeStatus::kLowManip:
         res.failed_excess = nd.manip;
-        why = strf("singular: manipulability %.3g below %.3g", nd.manip,
-                   P.manipulability_threshold);
+        why =
+            strf("singular: manipulability %.3g below %.3g", nd.manip, P.manipulability_threshold);
         break;
       case NodeStatus::kJump:
         res.failed_joint = nd.joint;
@@ -868,13 +905,16 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
         why = strf("joint %d jumps by %.3f rad (more than %.3f) between samples", nd.joint + 1,
                    nd.value, P.max_joint_jump);
         break;
-      default: why = "configuration branch lost: " + nd.info; break;
+      default:
+        why = "configuration branch lost: " + nd.info;
+        break;
     }
     res.message = where(i) + ": " + why;
     if (report >= 0) {
-      res.message += strf(" for every IK branch (%d tried) and re-orientation (spin about the "
-                          "tool axis, lean up to %.3f rad)",
-                          res.seeds_tried, P.max_extra_tilt);
+      res.message += strf(
+          " for every IK branch (%d tried) and re-orientation (spin about the "
+          "tool axis, lean up to %.3f rad)",
+          res.seeds_tried, P.max_extra_tilt);
       if (shown->range_first < i)
         res.message += strf("; the problems start at sample %zu (path index %d)",
                             shown->range_first, res.samples[shown->range_first].path_index);
@@ -906,15 +946,16 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
     tp.feed = g.feed;
     const TimingResult tr = time_parametrize(robot, s, q, tp);
     if (!tr.ok()) {
-      const std::size_t i = g.first_sample + static_cast<std::size_t>(std::max(0, tr.failed_sample));
+      const std::size_t i =
+          g.first_sample + static_cast<std::size_t>(std::max(0, tr.failed_sample));
       res.status = GrindStatus::kTimingFailed;
       res.failed_sample = static_cast<int>(i);
       res.failed_path_index = res.samples[i].path_index;
       res.failed_pass = res.samples[i].pass;
       res.failed_joint = tr.failed_joint;
       res.failed_excess = tr.failed_excess;
-      res.message = where(i) + ": time parametrization failed (" + to_string(tr.status) +
-                    "): " + tr.message;
+      res.message =
+          where(i) + ": time parametrization failed (" + to_string(tr.status) + "): " + tr.message;
       res.trajectory = JointTrajectory{};
       return res;
     }
@@ -933,8 +974,8 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
     }
     g.first_step = n0;
     g.last_step = T.t.size() - 1;
-    res.max_joint_velocity_ratio = std::max(res.max_joint_velocity_ratio,
-                                            tr.max_joint_velocity_ratio);
+    res.max_joint_velocity_ratio =
+        std::max(res.max_joint_velocity_ratio, tr.max_joint_velocity_ratio);
     res.max_joint_accel_ratio = std::max(res.max_joint_accel_ratio, tr.max_joint_accel_ratio);
     for (FeedReduction fr : tr.reductions) {
       fr.first_sample += g.first_sample;
@@ -966,8 +1007,8 @@ std::string trajectory_csv(const GrindResult& result) {
       const Pose& X = result.tcp_B[k];
       Eigen::Quaterniond q(X.linear());
       if (q.w() < 0) q.coeffs() = -q.coeffs();
-      out += strf(",%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g", X.translation().x(),
-                  X.translation().y(), X.translation().z(), q.w(), q.x(), q.y(), q.z());
+      out += strf(",%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g", X.translation().x(), X.translation().y(),
+                  X.translation().z(), q.w(), q.x(), q.y(), q.z());
     } else {
       out += ",,,,,,,";
     }
@@ -982,10 +1023,18 @@ std::string json_string(const std::string& s) {
   std::string o = "\"";
   for (char c : s) {
     switch (c) {
-      case '"': o += "\\\""; break;
-      case '\\': o += "\\\\"; break;
-      case '\n': o += "\\n"; break;
-      case '\t': o += "\\t"; break;
+      case '"':
+        o += "\\\"";
+        break;
+      case '\\':
+        o += "\\\\";
+        break;
+      case '\n':
+        o += "\\n";
+        break;
+      case '\t':
+        o += "\\t";
+        break;
       default:
         if (static_cast<unsigned char>(c) < 0x20)
           o += strf("\\u%04x", c);
@@ -996,7 +1045,9 @@ std::string json_string(const std::string& s) {
   return o + "\"";
 }
 
-std::string json_number(double v) { return std::isfinite(v) ? exact_number(v) : "null"; }
+std::string json_number(double v) {
+  return std::isfinite(v) ? exact_number(v) : "null";
+}
 
 }  // namespace
 
@@ -1028,28 +1079,29 @@ std::string grind_summary_json(const GrindResult& r) {
   std::string arr = "[";
   for (std::size_t k = 0; k < r.reoriented_ranges.size(); ++k) {
     const auto& x = r.reoriented_ranges[k];
-    arr += strf("%s\n    {\"reason\": %s, \"first_sample\": %zu, \"last_sample\": %zu, "
-                "\"first_path_index\": %d, \"last_path_index\": %d, \"pass\": %d, "
-                "\"nominal_min_manipulability\": %s, \"min_manipulability\": %s, "
-                "\"extra_lead_rad\": %s, \"extra_tilt_rad\": %s, \"extra_spin_rad\": %s}",
-                k ? "," : "", json_string(to_string(x.reason)).c_str(), x.first_sample,
-                x.last_sample, x.first_path_index, x.last_path_index, x.pass,
-                json_number(x.nominal_min_manipulability).c_str(),
-                json_number(x.min_manipulability).c_str(), json_number(x.extra_lead).c_str(),
-                json_number(x.extra_tilt).c_str(), json_number(x.extra_spin).c_str());
+    arr += strf(
+        "%s\n    {\"reason\": %s, \"first_sample\": %zu, \"last_sample\": %zu, "
+        "\"first_path_index\": %d, \"last_path_index\": %d, \"pass\": %d, "
+        "\"nominal_min_manipulability\": %s, \"min_manipulability\": %s, "
+        "\"extra_lead_rad\": %s, \"extra_tilt_rad\": %s, \"extra_spin_rad\": %s}",
+        k ? "," : "", json_string(to_string(x.reason)).c_str(), x.first_sample, x.last_sample,
+        x.first_path_index, x.last_path_index, x.pass,
+        json_number(x.nominal_min_manipulability).c_str(),
+        json_number(x.min_manipulability).c_str(), json_number(x.extra_lead).c_str(),
+        json_number(x.extra_tilt).c_str(), json_number(x.extra_spin).c_str());
   }
   arr += r.reoriented_ranges.empty() ? "]" : "\n  ]";
   kv("trajectory.reoriented_ranges", arr);
   arr = "[";
   for (std::size_t k = 0; k < r.feed_reductions.size(); ++k) {
     const auto& x = r.feed_reductions[k];
-    arr += strf("%s\n    {\"first_sample\": %zu, \"last_sample\": %zu, \"s_begin_m\": %s, "
-                "\"s_end_m\": %s, \"min_feed_m_s\": %s, \"nominal_feed_m_s\": %s, "
-                "\"joint\": %d, \"limit\": %s}",
-                k ? "," : "", x.first_sample, x.last_sample, json_number(x.s_begin).c_str(),
-                json_number(x.s_end).c_str(), json_number(x.min_feed).c_str(),
-                json_number(x.nominal_feed).c_str(), x.joint + 1,
-                json_string(to_string(x.limit)).c_str());
+    arr += strf(
+        "%s\n    {\"first_sample\": %zu, \"last_sample\": %zu, \"s_begin_m\": %s, "
+        "\"s_end_m\": %s, \"min_feed_m_s\": %s, \"nominal_feed_m_s\": %s, "
+        "\"joint\": %d, \"limit\": %s}",
+        k ? "," : "", x.first_sample, x.last_sample, json_number(x.s_begin).c_str(),
+        json_number(x.s_end).c_str(), json_number(x.min_feed).c_str(),
+        json_number(x.nominal_feed).c_str(), x.joint + 1, json_string(to_string(x.limit)).c_str());
   }
   arr += r.feed_reductions.empty() ? "]" : "\n  ]";
   kv("trajectory.feed_reductions", arr, true);
@@ -1058,7 +1110,7 @@ std::string grind_summary_json(const GrindResult& r) {
 
 Image plot_joint_trajectory(const JointTrajectory& T, JointQuantity quantity, int width,
                             int height) {
-  static const Rgb kColors[6] = {{31, 119, 180}, {255, 127, 14}, {44, 160, 44},
+  static const Rgb kColors[6] = {{31, 119, 180}, {255, 127, 14},  {44, 160, 44},
                                  {214, 39, 40},  {148, 103, 189}, {140, 86, 75}};
   PlotSpec spec;
   const char* sym = "q";

@@ -36,7 +36,7 @@ namespace flashtwin::planner {
 
 /// One flash path as perception delivers it, in the casting frame {C}.
 struct GrindPath {
-  std::vector<Vec3> points_C;   ///< ordered root points on the CAD surface [m], N ≥ 2 (closed: ≥ 6)
+  std::vector<Vec3> points_C;  ///< ordered root points on the CAD surface [m], N ≥ 2 (closed: ≥ 6)
   std::vector<Vec3> normals_C;  ///< outward CAD surface (wall) normal at each point, N, any length
   Vec3 fin_normal_C = Vec3::UnitZ();  ///< fin plane normal, toward the tool's side (e.g. up)
   bool closed = false;                ///< closed loop (flash around a hole)
@@ -45,10 +45,10 @@ struct GrindPath {
 
 /// Options of plan_grind (defaults for a 12 mm burr on steel flash).
 struct GrindParams {
-  double spacing = 0.0005;  ///< arc-length spacing of the samples along the path [m]; the input
-                            ///< points are thinned to at least this spacing first
-  double feed = 0.01;       ///< cutting feed along the tool path (passes and pass links) [m/s]
-  double approach_feed = 0.02;      ///< feed of the approach and retract moves [m/s]
+  double spacing = 0.0005;      ///< arc-length spacing of the samples along the path [m]; the input
+                                ///< points are thinned to at least this spacing first
+  double feed = 0.01;           ///< cutting feed along the tool path (passes and pass links) [m/s]
+  double approach_feed = 0.02;  ///< feed of the approach and retract moves [m/s]
   double approach_distance = 0.03;  ///< approach/retract height along the fin normal [m]
   double lead = 0;                  ///< lead angle (shank toward the travel direction) [rad]
   double tilt = 0;                  ///< tilt angle (shank away from the wall) [rad]
@@ -77,19 +77,20 @@ struct GrindParams {
 enum class SampleKind {
   kApproach,  ///< straight move down along the fin normal to the start of the first pass
   kCut,       ///< a pass along the path
-  kLink,      ///< radial step-in between passes (cutting feed)
+  kLink,      ///< radial step-in between passes at the same path point (cutting feed); open
+              ///< paths alternate direction pass by pass, closed ones restart at the seam
   kRetract,   ///< straight move up along the fin normal from the end of the last pass
 };
 
 /// One planned sample (IK node) of the motion.
 struct GrindSample {
   SampleKind kind = SampleKind::kCut;
-  int pass = 0;        ///< pass 0..passes−1 (approach: 0, retract: the last)
-  int path_index = 0;  ///< nearest input point (points_C index)
-  double s = 0;        ///< tool path length from the start [m] (TCP travel)
+  int pass = 0;                  ///< pass 0..passes−1 (approach: 0, retract: the last)
+  int path_index = 0;            ///< nearest input point (points_C index)
+  double s = 0;                  ///< tool path length from the start [m] (TCP travel)
   Pose X_CT = Pose::Identity();  ///< tool pose in the casting frame
   Pose X_BT = Pose::Identity();  ///< tool pose in the robot base, X_BC·X_CT
-  Vector6 q = Vector6::Zero();   ///< joint configuration [rad] (nominal pose's IK on failure, if any)
+  Vector6 q = Vector6::Zero();   ///< joint configuration [rad] (on failure: as far as tracked)
   double manipulability = 0;     ///< |det J| at q
   double axis_offset = 0;        ///< o: axis distance from the root along n at the fin plane [m]
   double extra_lead = 0, extra_tilt = 0, extra_spin = 0;  ///< re-orientation applied here [rad]
@@ -123,8 +124,8 @@ struct ReorientedRange {
   std::size_t first_sample = 0, last_sample = 0;  ///< inclusive, the samples that were bad
   int first_path_index = 0, last_path_index = 0;  ///< their nearest input points
   int pass = 0;                                   ///< pass of the first sample
-  double nominal_min_manipulability = 0;  ///< lowest manipulability before (0 where no IK)
-  double min_manipulability = 0;          ///< lowest manipulability after, over the blend window
+  double nominal_min_manipulability = 0;          ///< lowest manipulability before (0 where no IK)
+  double min_manipulability = 0;  ///< lowest manipulability after, over the blend window
   double extra_lead = 0, extra_tilt = 0, extra_spin = 0;  ///< the re-orientation [rad]
   double blend_length = 0;  ///< fade length used on each side [m] (blend_length ×1, ×2 or ×4)
 };
@@ -138,8 +139,8 @@ struct GrindResult {
   int failed_sample = -1;      ///< first bad sample (index into samples)
   int failed_path_index = -1;  ///< its nearest input point
   int failed_pass = -1;
-  int failed_joint = -1;       ///< 0..5 for kJointLimit (timing: the joint named by it)
-  double failed_excess = 0;    ///< [rad] beyond the limit (kJointLimit); manipulability (kSingular)
+  int failed_joint = -1;     ///< 0..5 for kJointLimit (timing: the joint named by it)
+  double failed_excess = 0;  ///< [rad] beyond the limit (kJointLimit); manipulability (kSingular)
 
   IkBranch branch;       ///< the one configuration branch of the whole motion
   double base_spin = 0;  ///< chosen rotation of x_T about z_T from the reference [rad]
@@ -164,19 +165,24 @@ struct GrindResult {
   bool ok() const { return status == GrindStatus::kOk; }
 };
 
-/// Plans the grinding motion of one path on the casting at X_BC.
+/// Plans the grinding motion of one path on the casting at X_BC: spline, samples, passes
+/// (fin_height / max_depth_of_cut of them, rounded up, equal depths, the last flush with the
+/// wall), one IK branch chosen over all (branch, base spin) seeds of the first pose — among the
+/// seeds that complete, those within 10 % of the best minimum manipulability, then the fewest
+/// re-orientations, then the largest joint-limit margin — re-orientation of bad ranges (spin about
+/// z_T first, then leans of growing size), and time parametrization segment by segment (each
+/// starts and ends at rest; all share one sample period).
 /// @throws ArgumentError on malformed input: size mismatch, non-finite values, a zero fin
 /// normal, a wall normal (nearly) parallel to the fin normal, too few points after thinning,
-/// parameters out of range, or a robot the analytic IK does not handle.
+/// more than 100 passes, parameters out of range, or a robot the analytic IK does not handle.
 GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPath& path,
                        const GrindParams& params = {});
 
 /// Tool pose X_CT of the geometry above (exposed for tests and for other planners).
 /// `x_ref` is the reference for x_T (projected ⟂ z_T). @pre f, n, t orthonormal.
-Pose grind_tool_pose(const Vec3& p, const Vec3& n, const Vec3& t, const Vec3& f,
-                     const Vec3& x_ref, double extra_offset, double lead, double tilt,
-                     double spin, double radius, double length, double tip_depth,
-                     double* axis_offset = nullptr);
+Pose grind_tool_pose(const Vec3& p, const Vec3& n, const Vec3& t, const Vec3& f, const Vec3& x_ref,
+                     double extra_offset, double lead, double tilt, double spin, double radius,
+                     double length, double tip_depth, double* axis_offset = nullptr);
 
 /// trajectory.csv text: t, q1..q6, dq1..dq6, ddq1..ddq6, x y z qw qx qy qz of the TCP in {B}
 /// (SI units, one header line). @pre result.ok().

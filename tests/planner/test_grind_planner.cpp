@@ -1,0 +1,604 @@
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <string>
+
+#include "flashtwin/core/errors.hpp"
+#include "flashtwin/core/io.hpp"
+#include "flashtwin/planner/grind_planner.hpp"
+#include "flashtwin/planner/ik.hpp"
+#include "flashtwin/planner/kinematics.hpp"
+#include "test_util.hpp"
+
+using namespace flashtwin;
+using namespace flashtwin::planner;
+
+namespace {
+
+const Vec3 kUp = Vec3::UnitZ();
+
+Pose translation(const Vec3& t) {
+  Pose X = Pose::Identity();
+  X.translation() = t;
+  return X;
+}
+
+// Horizontal fin on the vertical wall x_C = 0 whose outward normal −x_C faces the robot; the root
+// runs along y_C from y0 to y1 at z_C = 0.
+GrindPath wall_line(double y0, double y1, double step) {
+  GrindPath p;
+  const int n = static_cast<int>(std::lround((y1 - y0) / step));
+  for (int k = 0; k <= n; ++k) {
+    p.points_C.push_back(Vec3(0, y0 + k * step, 0));
+    p.normals_C.push_back(Vec3(-1, 0, 0));
+  }
+  p.fin_normal_C = kUp;
+  return p;
+}
+
+// Flash around a vertical hole of radius R centred on the z_C axis: the wall normal points into
+// the hole's free space (toward the axis).
+GrindPath hole_circle(double R, int n) {
+  GrindPath p;
+  p.closed = true;
+  for (int k = 0; k < n; ++k) {
+    const double a = 2 * M_PI * k / n;
+    p.points_C.push_back(Vec3(R * std::cos(a), R * std::sin(a), 0));
+    p.normals_C.push_back(-Vec3(std::cos(a), std::sin(a), 0));
+  }
+  p.fin_normal_C = kUp;
+  return p;
+}
+
+// The timed joint trajectory is continuous and inside the joint limits (position, velocity,
+// acceleration), with no NaN, and its velocities integrate to its positions.
+void expect_trajectory_sound(const RobotModel& robot, const GrindResult& r) {
+  const JointTrajectory& T = r.trajectory;
+  ASSERT_GT(T.size(), 2u);
+  ASSERT_EQ(r.tcp_B.size(), T.size());
+  double max_step = 0, max_integ = 0, vr = 0, ar = 0;
+  for (std::size_t n = 0; n < T.size(); ++n) {
+    ASSERT_TRUE(T.q[n].allFinite() && T.dq[n].allFinite() && T.ddq[n].allFinite()) << n;
+    EXPECT_TRUE(robot.within_limits(T.q[n], 1e-9)) << "step " << n;
+    for (int j = 0; j < 6; ++j) {
+      vr = std::max(vr, std::abs(T.dq[n][j]) / robot.limits[j].velocity);
+      ar = std::max(ar, std::abs(T.ddq[n][j]) / robot.limits[j].acceleration);
+    }
+    if (n + 1 < T.size()) {
+      EXPECT_NEAR(T.t[n + 1] - T.t[n], T.dt, 1e-9);
+      const Vector6 dq = T.q[n + 1] - T.q[n];
+      for (int j = 0; j < 6; ++j)
+        max_step = std::max(max_step, std::abs(dq[j]) / (robot.limits[j].velocity * T.dt));
+      const Vector6 integ = dq - 0.5 * T.dt * (T.dq[n] + T.dq[n + 1]);
+      max_integ = std::max(max_integ, integ.cwiseAbs().maxCoeff());
+    }
+  }
+  EXPECT_LE(max_step, 1.0) << "a joint moves faster than its limit between two samples";
+  EXPECT_LT(max_integ, 1e-6) << "positions and velocities disagree (a jump)";
+  EXPECT_LE(vr, 1.0);
+  EXPECT_LE(ar, 1.0);
+  EXPECT_NEAR(r.max_joint_velocity_ratio, vr, 1e-9);
+  EXPECT_NEAR(r.max_joint_accel_ratio, ar, 1e-9);
+  // At rest at both ends.
+  EXPECT_LT(T.dq.front().norm(), 1e-12);
+  EXPECT_LT(T.dq.back().norm(), 1e-9);
+}
+
+// Every sample's q is an IK solution of its pose on the reported branch (one branch throughout,
+// hence no wrist flip or elbow/shoulder switch), and the samples' joints never jump.
+void expect_single_branch(const RobotModel& robot, const GrindResult& r, double max_jump) {
+  const int branch = r.branch.index();
+  for (std::size_t i = 0; i < r.samples.size(); ++i) {
+    const GrindSample& s = r.samples[i];
+    const Pose X = fk_tool(robot, s.q);
+    ASSERT_LT((X.translation() - s.X_BT.translation()).norm(), 1e-9) << i;
+    ASSERT_LT(rotation_distance(X.linear(), s.X_BT.linear()), 1e-9) << i;
+    IkParams ip;
+    ip.q_ref = s.q;
+    const IkResult ik = ik_tool(robot, s.X_BT, ip);
+    int found = -1;
+    for (const auto& sol : ik.solutions)
+      if ((sol.q - s.q).cwiseAbs().maxCoeff() < 1e-6) found = sol.branch.index();
+    ASSERT_EQ(found, branch) << "sample " << i << " is not on branch " << r.branch.name();
+    if (i > 0) {
+      ASSERT_LE((s.q - r.samples[i - 1].q).cwiseAbs().maxCoeff(), max_jump) << i;
+    }
+  }
+}
+
+// Signed clearance between the cutting cylinder and the wall plane through `root` with normal
+// `n` (0: tangent, < 0: gouge), for a tool pose X_CT.
+double wall_clearance(const Pose& X_CT, const Vec3& root, const Vec3& n, double radius,
+                      double length) {
+  const Vec3 z = X_CT.linear().col(2);
+  const Vec3 tip = X_CT.translation();
+  const Vec3 top = tip - length * z;
+  const double c = z.dot(n);
+  return std::min((tip - root).dot(n), (top - root).dot(n)) -
+         radius * std::sqrt(std::max(0.0, 1 - c * c));
+}
+
+}  // namespace
+
+TEST(GrindPlanner, LineOnVerticalWallGivesKnownToolPoses) {
+  const RobotModel robot = ftest::ft6();
+  const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
+  GrindParams P;
+  const GrindResult r = plan_grind(robot, X_BC, wall_line(-0.1, 0.1, 0.005), P);
+  ASSERT_TRUE(r.ok()) << r.message;
+  EXPECT_EQ(r.passes, 1);
+  const double rad = robot.tool.radius, dtip = robot.tool.length / 2;
+
+  // Segments: approach, one pass, retract, joined at shared samples.
+  ASSERT_EQ(r.segments.size(), 3u);
+  EXPECT_EQ(r.segments[0].kind, SampleKind::kApproach);
+  EXPECT_EQ(r.segments[1].kind, SampleKind::kCut);
+  EXPECT_EQ(r.segments[2].kind, SampleKind::kRetract);
+  EXPECT_EQ(r.segments[0].last_sample, r.segments[1].first_sample);
+  EXPECT_EQ(r.segments[1].last_sample, r.segments[2].first_sample);
+  EXPECT_EQ(r.segments[2].last_sample, r.samples.size() - 1);
+  const std::size_t c0 = r.segments[1].first_sample, c1 = r.segments[1].last_sample;
+  EXPECT_EQ(c1 - c0, 400u);  // 200 mm at 0.5 mm
+
+  for (std::size_t i = c0; i <= c1; ++i) {
+    const GrindSample& s = r.samples[i];
+    // Axis along −fin normal, axis r off the wall, tip d_tip below the fin mid-plane.
+    EXPECT_LT((s.X_CT.linear().col(2) - Vec3(0, 0, -1)).norm(), 1e-12) << i;
+    EXPECT_NEAR(s.X_CT.translation().x(), -rad, 1e-12) << i;
+    EXPECT_NEAR(s.X_CT.translation().z(), -dtip, 1e-12) << i;
+    EXPECT_NEAR(s.X_CT.translation().y(), -0.1 + 0.0005 * static_cast<double>(i - c0), 1e-9);
+    EXPECT_NEAR(s.axis_offset, rad, 1e-12);
+    EXPECT_EQ(s.kind, SampleKind::kCut);
+    const Pose X = X_BC * s.X_CT;
+    EXPECT_LT((X.matrix() - s.X_BT.matrix()).norm(), 1e-12);
+    EXPECT_EQ(s.extra_lead, 0.0);
+    EXPECT_EQ(s.extra_tilt, 0.0);
+    // The nearest input point (ties halfway between two points go either way).
+    EXPECT_LE(std::abs(-0.1 + 0.005 * s.path_index - s.X_CT.translation().y()), 0.0025 + 1e-12);
+  }
+  // Approach from 30 mm straight above the start along the fin normal; retract likewise.
+  const Vec3 start = r.samples[c0].X_CT.translation(), end = r.samples[c1].X_CT.translation();
+  EXPECT_LT((r.samples.front().X_CT.translation() - (start + 0.03 * kUp)).norm(), 1e-12);
+  EXPECT_LT((r.samples.back().X_CT.translation() - (end + 0.03 * kUp)).norm(), 1e-12);
+  for (std::size_t i = 0; i < c0; ++i) {
+    const Vec3 d = r.samples[i].X_CT.translation() - start;
+    EXPECT_LT(d.head<2>().norm(), 1e-12);
+    EXPECT_GT(d.z(), 0);
+  }
+  EXPECT_NEAR(r.path_length, 0.2 + 2 * 0.03, 1e-9);
+  EXPECT_NEAR(r.cut_length, 0.2, 1e-9);
+
+  expect_single_branch(robot, r, P.max_joint_jump);
+  expect_trajectory_sound(robot, r);
+  EXPECT_GE(r.min_manipulability, P.manipulability_threshold);
+  EXPECT_TRUE(r.reoriented_ranges.empty());
+
+  // The executed TCP (FK of q(t)) stays on the planned line while cutting.
+  double max_dev = 0;
+  for (std::size_t n = r.segments[1].first_step; n <= r.segments[1].last_step; ++n) {
+    const Vec3 p = r.tcp_B[n].translation();
+    max_dev = std::max(max_dev, std::hypot(p.x() - (0.7 - rad), p.z() - (-0.15 - dtip)));
+  }
+  EXPECT_LT(max_dev, 1e-5);
+  // The feed: cutting at `feed`, approaching at `approach_feed` (both reached, never exceeded).
+  double cut_max = 0, app_max = 0;
+  for (std::size_t n = r.segments[1].first_step; n <= r.segments[1].last_step; ++n)
+    cut_max = std::max(cut_max, r.trajectory.sdot[n]);
+  for (std::size_t n = r.segments[0].first_step; n <= r.segments[0].last_step; ++n)
+    app_max = std::max(app_max, r.trajectory.sdot[n]);
+  EXPECT_NEAR(cut_max, P.feed, 1e-3 * P.feed);
+  EXPECT_NEAR(app_max, P.approach_feed, 1e-3 * P.approach_feed);
+  EXPECT_GT(r.total_time, 0.2 / P.feed);
+}
+
+TEST(GrindPlanner, ClosedCircleAroundHole) {
+  const RobotModel robot = ftest::ft6();
+  Pose X_BC = translation(Vec3(0.7, 0.05, -0.15));
+  X_BC.linear() = Eigen::AngleAxisd(0.5, Vec3::UnitZ()).toRotationMatrix();
+  const double R = 0.03;
+  GrindParams P;
+  const GrindResult r = plan_grind(robot, X_BC, hole_circle(R, 72), P);
+  ASSERT_TRUE(r.ok()) << r.message;
+  const double rad = robot.tool.radius, dtip = robot.tool.length / 2;
+  ASSERT_EQ(r.segments.size(), 3u);
+  const std::size_t c0 = r.segments[1].first_sample, c1 = r.segments[1].last_sample;
+  // 2πR at 0.5 mm (the interpolated loop is a hair shorter than the circle).
+  EXPECT_NEAR(static_cast<double>(c1 - c0), 2 * M_PI * R / 0.0005, 1.0);
+  double max_err = 0;
+  for (std::size_t i = c0; i <= c1; ++i) {
+    const GrindSample& s = r.samples[i];
+    const Vec3 tip = s.X_CT.translation();
+    // Axis parallel to the hole axis, r inside the hole wall, tip d_tip below the fin.
+    EXPECT_LT((s.X_CT.linear().col(2) - Vec3(0, 0, -1)).norm(), 1e-12);
+    max_err = std::max(max_err, std::abs(tip.head<2>().norm() - (R - rad)));
+    EXPECT_NEAR(tip.z(), -dtip, 1e-12);
+    EXPECT_TRUE((X_BC * s.X_CT).matrix().isApprox(s.X_BT.matrix(), 1e-12));
+  }
+  EXPECT_LT(max_err, 1e-5);
+  // The loop closes: the pass ends where it started, having gone once around.
+  EXPECT_LT((r.samples[c0].X_CT.translation() - r.samples[c1].X_CT.translation()).norm(), 1e-9);
+  EXPECT_NEAR(r.cut_length, 2 * M_PI * (R - rad), 1e-4);
+  expect_single_branch(robot, r, P.max_joint_jump);
+  expect_trajectory_sound(robot, r);
+}
+
+TEST(GrindPlanner, RotationAboutToolAxisCannotLeaveWristSingularityOfThisTool) {
+  // Why the planner must lean the axis at a wrist singularity: with X_ET a pure offset along
+  // z_E, spinning the tool about z_T leaves the wrist centre and θ5 unchanged.
+  const RobotModel robot = ftest::ft6();
+  Pose X = translation(Vec3(0.55, 0.15, -0.72));
+  X.linear() = Vec3(1, -1, -1).asDiagonal();
+  const IkResult a = ik_tool(robot, X);
+  ASSERT_TRUE(a.ok());
+  for (double spin : {0.3, 1.0, 2.5}) {
+    Pose Y = X;
+    Y.linear() = X.linear() * Eigen::AngleAxisd(spin, Vec3::UnitZ()).toRotationMatrix();
+    const IkResult b = ik_tool(robot, Y);
+    ASSERT_EQ(a.solutions.size(), b.solutions.size());
+    for (std::size_t k = 0; k < a.solutions.size(); ++k) {
+      EXPECT_NEAR(manipulability(robot, a.solutions[k].q), manipulability(robot, b.solutions[k].q),
+                  1e-12);
+      EXPECT_NEAR(a.solutions[k].q[4], b.solutions[k].q[4], 1e-9);
+    }
+  }
+}
+
+TEST(GrindPlanner, WristSingularityIsAvoidedByLeaningAndReported) {
+  const RobotModel robot = ftest::ft6();
+  // The tool tip runs along x_B at y_B = 0.15, z_B = −0.72: there the forearm of the only
+  // (elbow-up) branches points straight down along the tool axis near x_B = 0.52.
+  const Pose X_BC = translation(Vec3(0.5, 0.144, -0.71));
+  GrindPath path;
+  for (int k = 0; k <= 40; ++k) {
+    path.points_C.push_back(Vec3(-0.1 + 0.005 * k, 0, 0));
+    path.normals_C.push_back(Vec3(0, 1, 0));
+  }
+  path.fin_normal_C = kUp;
+  GrindParams P;
+  const GrindResult r = plan_grind(robot, X_BC, path, P);
+  ASSERT_TRUE(r.ok()) << r.message;
+
+  // The nominal poses (no re-orientation) pass the singularity on this branch.
+  const double rad = robot.tool.radius, len = robot.tool.length, dtip = len / 2;
+  std::vector<int> singular_points;
+  double nominal_min = 1;
+  for (std::size_t k = 0; k < path.points_C.size(); ++k) {
+    const Pose X = X_BC * grind_tool_pose(path.points_C[k], Vec3(0, 1, 0), Vec3(1, 0, 0), kUp,
+                                          Vec3(1, 0, 0), 0, 0, 0, r.base_spin, rad, len, dtip);
+    const IkResult ik = ik_tool(robot, X);
+    for (const auto& sol : ik.solutions)
+      if (sol.branch.index() == r.branch.index()) {
+        const double m = manipulability(robot, sol.q);
+        nominal_min = std::min(nominal_min, m);
+        if (m < P.manipulability_threshold) singular_points.push_back(static_cast<int>(k));
+      }
+  }
+  ASSERT_LT(nominal_min, 0.2 * P.manipulability_threshold) << "test path misses the singularity";
+  ASSERT_FALSE(singular_points.empty());
+
+  // Reported: every nominally singular point lies in a re-oriented range of reason singular.
+  ASSERT_FALSE(r.reoriented_ranges.empty());
+  for (int k : singular_points) {
+    bool covered = false;
+    for (const auto& rr : r.reoriented_ranges)
+      covered |= rr.reason == ReorientReason::kSingular && rr.first_path_index <= k &&
+                 k <= rr.last_path_index;
+    EXPECT_TRUE(covered) << "path index " << k;
+  }
+  for (const auto& rr : r.reoriented_ranges) {
+    const double lean = std::hypot(rr.extra_lead, rr.extra_tilt);
+    EXPECT_GT(lean, 0);
+    EXPECT_LE(lean, P.max_extra_tilt + 1e-12);
+    EXPECT_LT(rr.nominal_min_manipulability, P.manipulability_threshold);
+    EXPECT_GE(rr.min_manipulability, P.manipulability_threshold);
+    EXPECT_LE(rr.first_sample, rr.last_sample);
+  }
+  // Fixed everywhere, within the allowed lean, without gouging the wall.
+  EXPECT_GE(r.min_manipulability, P.manipulability_threshold);
+  for (const GrindSample& s : r.samples) {
+    EXPECT_GE(s.manipulability, P.manipulability_threshold);
+    const double lean = std::acos(std::clamp(-s.X_CT.linear().col(2).dot(kUp), -1.0, 1.0));
+    EXPECT_LE(lean, P.max_extra_tilt + 1e-9);
+    if (s.kind == SampleKind::kCut) {
+      EXPECT_NEAR(wall_clearance(s.X_CT, Vec3(0, 0, 0), Vec3(0, 1, 0), rad, len), 0.0, 1e-12);
+    }
+  }
+  expect_single_branch(robot, r, P.max_joint_jump);
+  expect_trajectory_sound(robot, r);
+  // No wrist flip: θ5 keeps its sign and stays away from zero over the whole trajectory.
+  double min_abs_q5 = 10;
+  for (const Vector6& q : r.trajectory.q) {
+    EXPECT_EQ(std::signbit(q[4]), std::signbit(r.trajectory.q.front()[4]));
+    min_abs_q5 = std::min(min_abs_q5, std::abs(q[4]));
+  }
+  EXPECT_GT(min_abs_q5, 0.05);
+}
+
+TEST(GrindPlanner, JointLimitIsAvoidedByRotationAboutToolAxis) {
+  RobotModel robot = ftest::ft6();
+  const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
+  const GrindPath path = wall_line(-0.15, 0.15, 0.005);
+  GrindParams P;
+  P.spin_candidates = 1;
+  const GrindResult free_run = plan_grind(robot, X_BC, path, P);
+  ASSERT_TRUE(free_run.ok()) << free_run.message;
+  // Joint 6 counter-rotates joint 1 along the line; narrow its range so the last 40 % of the
+  // line would need it beyond the upper (or lower) limit.
+  const double a = free_run.samples.front().q[5], b = free_run.samples.back().q[5];
+  const double delta = b - a;
+  ASSERT_GT(std::abs(delta), 0.3);
+  JointLimits& L6 = robot.limits[5];
+  // Room for the smallest spin step (30°) on the other side.
+  L6.lower = delta > 0 ? a - 0.4 : a + 0.6 * delta;
+  L6.upper = delta > 0 ? a + 0.6 * delta : a + 0.4;
+  P.branch_mask = 1u << free_run.branch.index();
+  const GrindResult r = plan_grind(robot, X_BC, path, P);
+  ASSERT_TRUE(r.ok()) << r.message;
+  ASSERT_EQ(r.reoriented_ranges.size(), 1u);
+  const ReorientedRange& rr = r.reoriented_ranges[0];
+  EXPECT_EQ(rr.reason, ReorientReason::kJointLimit);
+  EXPECT_NE(rr.extra_spin, 0.0);  // the free rotation, no lean
+  EXPECT_EQ(rr.extra_lead, 0.0);
+  EXPECT_EQ(rr.extra_tilt, 0.0);
+  EXPECT_EQ(rr.last_sample, r.samples.size() - 1);  // to the end of the retract
+  // Tool axis untouched: still along −fin normal, still flush with the wall.
+  for (const GrindSample& s : r.samples) {
+    EXPECT_LT((s.X_CT.linear().col(2) - Vec3(0, 0, -1)).norm(), 1e-12);
+    EXPECT_NEAR(s.axis_offset, robot.tool.radius, 1e-12);
+  }
+  EXPECT_NEAR(r.samples.back().q[5], b + rr.extra_spin, 1e-6);
+  expect_single_branch(robot, r, P.max_joint_jump);
+  expect_trajectory_sound(robot, r);
+}
+
+TEST(GrindPlanner, PathPartlyOutOfReachFailsAtFirstBadIndex) {
+  const RobotModel robot = ftest::ft6();
+  // The root runs along x_B from 0.7 to 1.3 m from the base, beyond the ~1.0 m reach.
+  const Pose X_BC = translation(Vec3(0, 0.1, -0.15));
+  GrindPath path;
+  for (int k = 0; k <= 60; ++k) {
+    path.points_C.push_back(Vec3(0.7 + 0.01 * k, 0, 0));
+    path.normals_C.push_back(Vec3(0, -1, 0));
+  }
+  path.fin_normal_C = kUp;
+  const GrindResult r = plan_grind(robot, X_BC, path);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.status, GrindStatus::kUnreachable);
+  ASSERT_GE(r.failed_sample, 0);
+  ASSERT_LT(r.failed_sample, static_cast<int>(r.samples.size()));
+  const GrindSample& bad = r.samples[static_cast<std::size_t>(r.failed_sample)];
+  EXPECT_EQ(bad.kind, SampleKind::kCut);
+  EXPECT_EQ(r.failed_pass, 0);
+  // Independently: the first sample whose pose has no IK solution at all.
+  int first_unreachable = -1;
+  for (std::size_t i = 0; i < r.samples.size() && first_unreachable < 0; ++i) {
+    IkParams ip;
+    ip.within_limits_only = false;
+    if (ik_tool(robot, r.samples[i].X_BT, ip).solutions.empty())
+      first_unreachable = static_cast<int>(i);
+  }
+  EXPECT_EQ(r.failed_sample, first_unreachable);
+  // Its path index is the input point nearest to it (points every 10 mm along x).
+  const double x = bad.X_CT.translation().x();
+  EXPECT_EQ(r.failed_path_index, static_cast<int>(std::lround((x - 0.7) / 0.01)));
+  EXPECT_GT(r.failed_path_index, 20);
+  EXPECT_LT(r.failed_path_index, 40);
+  // The wrist centre there is at the edge of the reach (a2 + √(a3² + d4²) ≈ 1.0004 m).
+  const Vec3 wc = (bad.X_BT * robot.tool.X_ET.inverse()).translation();
+  EXPECT_NEAR(std::hypot(std::hypot(wc.x(), wc.y()), wc.z()), 1.0, 0.02);
+  EXPECT_NE(r.message.find("path index " + std::to_string(r.failed_path_index)), std::string::npos)
+      << r.message;
+  EXPECT_NE(r.message.find("unreachable"), std::string::npos) << r.message;
+  EXPECT_TRUE(r.trajectory.t.empty());
+}
+
+TEST(GrindPlanner, FinHigherThanDepthOfCutGivesPassesEndingAtTheWall) {
+  const RobotModel robot = ftest::ft6();
+  const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
+  GrindParams P;
+  P.max_depth_of_cut = 0.002;
+  GrindPath path = wall_line(-0.05, 0.05, 0.005);
+  path.fin_height = 3 * P.max_depth_of_cut;
+  const GrindResult r = plan_grind(robot, X_BC, path, P);
+  ASSERT_TRUE(r.ok()) << r.message;
+  ASSERT_EQ(r.passes, 3);
+  ASSERT_EQ(r.pass_offsets.size(), 3u);
+  EXPECT_NEAR(r.pass_offsets[0], 0.004, 1e-15);
+  EXPECT_NEAR(r.pass_offsets[1], 0.002, 1e-15);
+  EXPECT_EQ(r.pass_offsets[2], 0.0);
+  const double rad = robot.tool.radius;
+  // approach, cut 0, link, cut 1, link, cut 2, retract
+  ASSERT_EQ(r.segments.size(), 7u);
+  const SampleKind kinds[7] = {SampleKind::kApproach, SampleKind::kCut,  SampleKind::kLink,
+                               SampleKind::kCut,      SampleKind::kLink, SampleKind::kCut,
+                               SampleKind::kRetract};
+  double prev_offset = 1;
+  for (int k = 0; k < 7; ++k) {
+    const GrindSegment& g = r.segments[static_cast<std::size_t>(k)];
+    EXPECT_EQ(g.kind, kinds[k]);
+    if (k > 0) {
+      EXPECT_EQ(g.first_sample, r.segments[static_cast<std::size_t>(k - 1)].last_sample);
+    }
+    if (g.kind != SampleKind::kCut) continue;
+    // Axis offset from the wall decreasing pass by pass, the last at r (flush).
+    const double expect = rad + r.pass_offsets[static_cast<std::size_t>(g.pass)];
+    EXPECT_LT(expect, prev_offset);
+    prev_offset = expect;
+    for (std::size_t i = g.first_sample; i <= g.last_sample; ++i) {
+      EXPECT_EQ(r.samples[i].pass, g.pass);
+      EXPECT_NEAR(-r.samples[i].X_CT.translation().x(), expect, 1e-12);
+      EXPECT_NEAR(r.samples[i].axis_offset, expect, 1e-12);
+    }
+    // Open paths alternate direction: pass 1 runs back.
+    const double y0 = r.samples[g.first_sample].X_CT.translation().y();
+    const double y1 = r.samples[g.last_sample].X_CT.translation().y();
+    EXPECT_NEAR(g.pass == 1 ? y0 - y1 : y1 - y0, 0.1, 1e-9);
+  }
+  EXPECT_NEAR(-r.samples[r.segments[5].last_sample].X_CT.translation().x(), rad, 1e-12);
+  // Links: radial step-in at the path end, cutting feed.
+  for (int k : {2, 4}) {
+    const GrindSegment& g = r.segments[static_cast<std::size_t>(k)];
+    EXPECT_EQ(g.feed, P.feed);
+    const Vec3 d =
+        r.samples[g.last_sample].X_CT.translation() - r.samples[g.first_sample].X_CT.translation();
+    EXPECT_LT((d - Vec3(P.max_depth_of_cut, 0, 0)).norm(), 1e-12);
+  }
+  EXPECT_NEAR(r.cut_length, 3 * 0.1 + 2 * 0.002, 1e-9);
+  expect_single_branch(robot, r, P.max_joint_jump);
+  expect_trajectory_sound(robot, r);
+
+  // Unknown fin height: one pass.
+  path.fin_height = 0;
+  EXPECT_EQ(plan_grind(robot, X_BC, path, P).passes, 1);
+  // Not a whole multiple: equal depths no deeper than the limit.
+  path.fin_height = 0.0045;
+  const GrindResult r3 = plan_grind(robot, X_BC, path, P);
+  ASSERT_EQ(r3.passes, 3);
+  EXPECT_NEAR(r3.pass_offsets[0], 0.003, 1e-15);
+}
+
+TEST(GrindPlanner, LeadAndTiltGeometry) {
+  const Vec3 p(0.1, 0.2, 0.3), n(-1, 0, 0), t(0, 1, 0), f = kUp;
+  const double r = 0.006, L = 0.02, d = 0.01;
+  // Lead: shank toward the travel direction, axis still parallel to the wall, offset r.
+  double off = 0;
+  const Pose A = grind_tool_pose(p, n, t, f, t, 0, 0.2, 0, 0, r, L, d, &off);
+  const Vec3 za = A.linear().col(2);
+  EXPECT_NEAR(-za.dot(t), std::sin(0.2), 1e-15);
+  EXPECT_NEAR(za.dot(n), 0, 1e-15);
+  EXPECT_NEAR(off, r, 1e-15);
+  EXPECT_NEAR(wall_clearance(A, p, n, r, L), 0, 1e-15);
+  // The axis crosses the fin plane at p + r·n; the tip is d further along z_T.
+  EXPECT_LT((A.translation() - (p + r * n + d * za)).norm(), 1e-15);
+  // Tilt: shank away from the wall; the tip end touches the wall, nothing enters it.
+  for (double tilt : {0.15, -0.15}) {
+    const Pose B = grind_tool_pose(p, n, t, f, t, 0, 0, tilt, 0, r, L, d, &off);
+    const Vec3 zb = B.linear().col(2);
+    EXPECT_NEAR(-zb.dot(n), std::sin(tilt), 1e-15);
+    EXPECT_NEAR(wall_clearance(B, p, n, r, L), 0, 1e-15);
+    EXPECT_GT(off, r);
+  }
+  // Rotations are proper and the spin turns x_T about z_T.
+  const Pose S0 = grind_tool_pose(p, n, t, f, t, 0, 0, 0, 0, r, L, d);
+  const Pose S1 = grind_tool_pose(p, n, t, f, t, 0, 0, 0, 0.7, r, L, d);
+  EXPECT_NEAR(S0.linear().determinant(), 1, 1e-12);
+  EXPECT_NEAR(S0.linear().col(0).dot(S1.linear().col(0)), std::cos(0.7), 1e-12);
+  EXPECT_LT((S0.translation() - S1.translation()).norm(), 1e-15);
+  // Through the planner: a lead keeps the cutter flush.
+  const RobotModel robot = ftest::ft6();
+  GrindParams P;
+  P.lead = 0.1;
+  const GrindResult res =
+      plan_grind(robot, translation(Vec3(0.7, 0, -0.15)), wall_line(-0.05, 0.05, 0.005), P);
+  ASSERT_TRUE(res.ok()) << res.message;
+  for (const GrindSample& s : res.samples) {
+    if (s.kind != SampleKind::kCut) continue;
+    const Vec3 z = s.X_CT.linear().col(2);
+    EXPECT_NEAR(-z.dot(Vec3(0, 1, 0)), std::sin(0.1), 1e-12);
+    EXPECT_NEAR(
+        wall_clearance(s.X_CT, Vec3(0, 0, 0), Vec3(-1, 0, 0), robot.tool.radius, robot.tool.length),
+        0, 1e-12);
+  }
+}
+
+TEST(GrindPlanner, Deterministic) {
+  const RobotModel robot = ftest::ft6();
+  const Pose X_BC = translation(Vec3(0.5, 0.144, -0.71));
+  GrindPath path;
+  for (int k = 0; k <= 40; ++k) {
+    path.points_C.push_back(Vec3(-0.1 + 0.005 * k, 0, 0));
+    path.normals_C.push_back(Vec3(0, 1, 0));
+  }
+  const GrindResult a = plan_grind(robot, X_BC, path);
+  const GrindResult b = plan_grind(robot, X_BC, path);
+  ASSERT_TRUE(a.ok()) << a.message;
+  ASSERT_EQ(a.samples.size(), b.samples.size());
+  for (std::size_t i = 0; i < a.samples.size(); ++i) {
+    ASSERT_EQ(a.samples[i].q, b.samples[i].q);
+    ASSERT_EQ(a.samples[i].X_BT.matrix(), b.samples[i].X_BT.matrix());
+  }
+  ASSERT_EQ(a.trajectory.size(), b.trajectory.size());
+  for (std::size_t n = 0; n < a.trajectory.size(); ++n)
+    ASSERT_EQ(a.trajectory.q[n], b.trajectory.q[n]);
+  EXPECT_EQ(grind_summary_json(a), grind_summary_json(b));
+}
+
+TEST(GrindPlanner, BadInputThrowsAndDuplicatesAreThinned) {
+  const RobotModel robot = ftest::ft6();
+  const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
+  GrindPath path = wall_line(-0.02, 0.02, 0.005);
+  GrindPath mismatch = path;
+  mismatch.normals_C.pop_back();
+  EXPECT_THROW(plan_grind(robot, X_BC, mismatch), ArgumentError);
+  GrindPath parallel = path;
+  parallel.normals_C[3] = Vec3(0, 0, 2);
+  EXPECT_THROW(plan_grind(robot, X_BC, parallel), ArgumentError);
+  GrindPath nan = path;
+  nan.points_C[2].x() = std::nan("");
+  EXPECT_THROW(plan_grind(robot, X_BC, nan), ArgumentError);
+  GrindPath few = hole_circle(0.03, 4);
+  EXPECT_THROW(plan_grind(robot, X_BC, few), ArgumentError);
+  GrindParams bad;
+  bad.spacing = 0;
+  EXPECT_THROW(plan_grind(robot, X_BC, path, bad), ArgumentError);
+  // Repeated and nearly repeated points (the spline would reject them) are thinned away.
+  GrindPath dup;
+  for (const Vec3& p : path.points_C)
+    for (int k = 0; k < 3; ++k) {
+      dup.points_C.push_back(p + Vec3(0, 1e-5 * k, 0));
+      dup.normals_C.push_back(Vec3(-1, 0, 0));
+    }
+  const GrindResult r = plan_grind(robot, X_BC, dup);
+  ASSERT_TRUE(r.ok()) << r.message;
+  EXPECT_NEAR(r.cut_length, 0.04 + 2e-5, 1e-9);
+}
+
+TEST(GrindPlanner, WritesCsvJsonAndPlots) {
+  const RobotModel robot = ftest::ft6();
+  const GrindResult r =
+      plan_grind(robot, translation(Vec3(0.7, 0, -0.15)), wall_line(-0.02, 0.02, 0.005));
+  ASSERT_TRUE(r.ok()) << r.message;
+  const std::string dir = ftest::temp_dir("grind_planner");
+  write_grind_outputs(r, dir);
+  const std::string csv = read_text_file(dir + "/trajectory.csv");
+  EXPECT_EQ(static_cast<std::size_t>(std::count(csv.begin(), csv.end(), '\n')),
+            r.trajectory.size() + 1);
+  const std::string header = csv.substr(0, csv.find('\n'));
+  EXPECT_EQ(std::count(header.begin(), header.end(), ','), 25);
+  EXPECT_EQ(header.rfind("t,q1,", 0), 0u);
+  EXPECT_NE(header.find(",ddq6,x,y,z,qw,qx,qy,qz"), std::string::npos);
+  // The last row: the final pose, 30 mm above the end of the line.
+  const std::string last = csv.substr(csv.rfind('\n', csv.size() - 2) + 1);
+  double vals[26];
+  std::size_t pos = 0;
+  for (double& v : vals) {
+    const std::size_t next = last.find_first_of(",\n", pos);
+    v = std::stod(last.substr(pos, next - pos));
+    pos = next + 1;
+  }
+  EXPECT_NEAR(vals[0], r.total_time, 1e-6);
+  EXPECT_NEAR(vals[19], 0.7 - robot.tool.radius, 1e-6);
+  EXPECT_NEAR(vals[20], 0.02, 1e-6);
+  EXPECT_NEAR(vals[21], -0.15 - 0.01 + 0.03, 1e-6);
+  EXPECT_NEAR(std::abs(vals[22]), 0, 1e-6);  // z_T down: a half turn about a horizontal axis
+
+  const std::string json = read_text_file(dir + "/grind_summary.json");
+  for (const char* key :
+       {"\"status\": \"ok\"", "\"trajectory.max_joint_velocity_ratio\"",
+        "\"trajectory.max_joint_accel_ratio\"", "\"trajectory.min_manipulability\"",
+        "\"trajectory.total_time_s\"", "\"trajectory.reoriented_ranges\": []"})
+    EXPECT_NE(json.find(key), std::string::npos) << key;
+  for (const char* png :
+       {"joint_positions.png", "joint_velocities.png", "joint_accelerations.png"}) {
+    std::ifstream in(dir + "/" + png, std::ios::binary);
+    ASSERT_TRUE(in.good()) << png;
+    char sig[8] = {};
+    in.read(sig, 8);
+    EXPECT_EQ(std::string(sig + 1, 3), "PNG") << png;
+  }
+  std::filesystem::remove_all(dir);
+}
