@@ -13,6 +13,8 @@ $FT scan scenarios/default.yaml -o "$OUT"
 echo "--- pose of the casting from its scan (registration to the CAD model):"
 $FT register --source "$OUT/scan.ply" --target "$OUT/cell/casting_cad.stl" --remove-plane \
   --viewpoint "0 0 0" | tee "$OUT/registration.txt"
+echo "--- the pipeline so far: scan, registration, flash detection, planning, scoring:"
+$FT run scenarios/default.yaml -o "$OUT/run"
 $FT render scenarios/default.yaml -o "$OUT"
 $FT render scenarios/default.yaml -o "$OUT" --truth --camera casting_closeup
 $FT workspace --samples 200000 -o "$OUT"
@@ -24,4 +26,4 @@ $FT ik --deg --pose "$pose" | tee "$OUT/ik.txt"
 echo
 echo "Outputs in $(pwd)/$OUT: cell.xml (open with: mujoco-simulate $OUT/cell.xml), robot.urdf,"
 echo "casting_cad.stl, scan.ply/.pcd/.json, registration.txt, render_*.png, scan_casting_closeup.png,"
-echo "workspace.png, fk.txt, ik.txt"
+echo "workspace.png, fk.txt, ik.txt; run/metrics.json, run/paths.json, run/trajectory.csv, run/plan/"
