@@ -1,0 +1,186 @@
+#pragma once
+// The executor: runs a joint trajectory on the MuJoCo cell under real dynamics (position servos
+// with torque limits, inverse-dynamics feed-forward) while the process model removes material
+// and pushes back on the tool, and logs what happened (tracking, forces, flange F/T sensor,
+// removal, joint ranges, speed). Only sim/ and its users that run the cell include this.
+//
+// Model names it relies on (the cell's contract, DESIGN.md): hinge joints joint1..joint6, position
+// actuators act1..act6 on them, site `tcp` (tool frame {T}), body `tool` (the forces of the process
+// model go into its xfrc_applied), body `casting` (frame {C}, fixed); optional sensors
+// `flange_force` / `flange_torque` (logged when present).
+//
+// One step of the loop (mj_step1 / set controls and forces / mj_step2, so controls see the
+// current state; MuJoCo's split step integrates with Euler whatever the model's integrator):
+//   1. reference q_ref(t), dq_ref, ddq_ref: cubic Hermite through the samples (q_k, dq_k), held
+//      at the last sample after the end (settle phase);
+//   2. optional admittance: a correction δ [m] along the last contact normal, mapped to joints by
+//      the damped inverse of the TCP Jacobian (mj_jacSite) with zero rotation;
+//   3. clamp to each joint's range shrunk by `limit_margin` (flagged the first time);
+//   4. ctrl = q_ref + τ_ff / kp: the feed-forward torque τ_ff = inverse dynamics at the reference
+//      (mj_inverse: inertia, Coriolis, gravity, joint damping) rides on the position servo, so the
+//      actuator's forcerange (the robot's torque limits) still bounds the total torque. The
+//      executor lifts the actuators' ctrlrange on its own copy of the model for that (it clamps
+//      the references itself);
+//   5. process model: X_CT = X_WC⁻¹·X_WT from site `tcp` and body `casting`; remove_material once
+//      the tool has moved `removal_motion` voxels (or `removal_max_interval` has passed, or every
+//      step while the tool penetrates the nominal body) since the last removal, with dt the time
+//      accumulated since; grinding_force, held until the next removal step, its rate part applied
+//      as an implicit resistance to the feed (implicit_rate_force) → world wrench at the tool
+//      body's COM in xfrc_applied.
+#include <mujoco/mujoco.h>
+
+#include <cstddef>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "flashtwin/core/robot.hpp"
+#include "flashtwin/core/transform.hpp"
+#include "flashtwin/sim/process.hpp"
+
+namespace flashtwin::sim {
+
+/// A joint trajectory sampled at increasing times (from the planner's timing or any source).
+struct JointTrajectory {
+  std::vector<double> t;    ///< [s] strictly increasing sample times; shape N ≥ 1
+  std::vector<Vector6> q;   ///< [rad] joint positions; shape N
+  std::vector<Vector6> dq;  ///< [rad/s] joint velocities; shape N, or empty (then estimated by
+                            ///< finite differences of q)
+  /// Planned tool poses X_WT per sample (shape N) for the tracking metrics, or empty (no tracking).
+  std::vector<Pose> planned_tcp_W;
+};
+
+/// Admittance force control along the tool's contact normal.
+struct ForceControlParams {
+  bool enabled = false;
+  /// [N] normal grinding force target; also the reference of ExecutionResult::force_rmse
+  /// (used whether or not the control is enabled).
+  double target_force = 20.0;
+  double gain = 1e-4;            ///< [m/(N·s)] correction rate per newton of force error
+  double max_correction = 3e-3;  ///< [m] bound on |δ| (the servos yield ~1 mm per 40 N)
+  /// [s] δ keeps integrating this long after the last contact (the tool may bounce off), then
+  /// returns to 0 with this time constant.
+  double release_time = 0.05;
+};
+
+/// Parameters of execute_trajectory (fields named `execution.<field>` in error messages).
+struct ExecParams {
+  double timestep = 0;       ///< [s] MuJoCo step; 0 = the model's. Must be ≤ 0.001 (≥ 1 kHz)
+  double settle_time = 0.2;  ///< [s] the last sample is held this long after the trajectory
+  bool feedforward = true;   ///< inverse-dynamics feed-forward torque at the reference
+  ForceControlParams force_control;
+  int log_decimation = 10;  ///< one log row every this many steps (≥ 1), plus the last step
+  /// [rad] references are kept this far inside each joint's range, so the servo's overshoot
+  /// stays in range; a reference beyond it is clamped and reported.
+  double limit_margin = 0.01;
+  double joint_tolerance = 1e-3;  ///< [rad] slack of the joint-range check (violation counting)
+  /// [voxels] tool motion (translation + rotation × cutter length) that triggers a removal step.
+  double removal_motion = 0.5;
+  double removal_max_interval = 0.01;  ///< [s] a removal step at least this often
+  /// Apply the grinding (rate) part of the process force as a resistance to the feed, solved
+  /// implicitly: the wrench per unit feed speed (impulse of the recent removal intervals / their
+  /// net progress, see rate_window) times the TCP's speed along that travel at the end of each
+  /// MuJoCo step (effective inertia from mj_solveM, servo and passive forces of the step); only a
+  /// wrench that resists the feed is applied. Without it the wrench of each removal step is
+  /// applied as computed and held until the next: a removal rate over whole voxels then acts like
+  /// a damper far stiffer than the tool's effective mass allows over one step, and the tool
+  /// chatters (stick-slip). The penalty part is elastic and always applied as computed.
+  bool implicit_rate_force = true;
+  /// [voxels] with implicit_rate_force, the per-speed wrench is averaged over removal intervals
+  /// covering this much travel (≥ 0.5): removal comes in whole voxels, so the cut cross-section is
+  /// only meaningful over a few.
+  double rate_window = 8;
+  /// Called after every step with the executor's model and data and the simulated time [s]
+  /// (video frames); must not change the state. Empty: none.
+  std::function<void(const mjModel*, mjData*, double)> on_step;
+};
+
+/// What happened to the references and the simulation.
+enum class ExecStatus {
+  kOk,                ///< ran to the end, no reference clamped
+  kReferenceClamped,  ///< ran to the end; some reference left its joint's range and was clamped
+  kUnstable,          ///< MuJoCo reported a bad state (NaN/huge acceleration); stopped early
+};
+
+/// "ok", "reference_clamped", "unstable".
+const char* to_string(ExecStatus status);
+
+/// Decimated time series (one row every log_decimation steps); all vectors have the same length
+/// except the optional ones, which are empty when their source is absent.
+struct ExecutionLog {
+  std::vector<double> t;             ///< [s] simulated time of the row (trajectory time − t_0)
+  std::vector<Vector6> q;            ///< [rad] executed joint positions
+  std::vector<Vector6> q_ref;        ///< [rad] commanded positions (correction added, clamped)
+  std::vector<Vec3> tcp_W;           ///< [m] executed TCP in {W}
+  std::vector<Vec3> planned_tcp_W;   ///< [m] planned TCP, linear between samples (optional)
+  std::vector<double> normal_force;  ///< [N] F_n + penalty as applied to the tool
+  std::vector<double> tangential_force;  ///< [N] F_t as applied to the tool
+  std::vector<Vec3> process_force_W;     ///< [N] force the process model puts on the tool, {W}
+  std::vector<Vec3> sensor_force_E;      ///< [N] flange force sensor reading, site frame (optional)
+  std::vector<Vec3> sensor_torque_E;     ///< [N·m] flange torque sensor reading (optional)
+  std::vector<Vec3> sensor_force_W;      ///< [N] the force reading rotated into {W} (optional)
+  std::vector<double> removed_volume;    ///< [m^3] cumulative volume removed (flash + body)
+  std::vector<double> correction;        ///< [m] admittance correction δ (into the material)
+};
+
+/// Outcome of one execution. Tracking compares the executed TCP with planned_tcp_W at the step
+/// nearest each sample time; force statistics use every step in contact (the process model
+/// pushes on the tool: material removed within the rate window while the tool feeds, or the tool
+/// penetrating the nominal body).
+struct ExecutionResult {
+  ExecStatus status = ExecStatus::kOk;
+  std::string message;            ///< what the status means for this run
+  int first_clamp_joint = -1;     ///< 0-based joint of the first clamped reference (−1: none)
+  double first_clamp_time = -1;   ///< [s] simulated time of the first clamp (−1: none)
+  std::size_t clamped_steps = 0;  ///< steps with any reference clamped
+
+  ExecutionLog log;
+
+  std::size_t tracking_samples = 0;  ///< samples compared (0 without planned_tcp_W)
+  double tracking_rmse = 0;          ///< [m] executed vs planned TCP position
+  double tracking_max = 0;           ///< [m]
+  double tracking_max_rotation = 0;  ///< [rad] executed vs planned tool orientation
+  double final_error = 0;  ///< [m] TCP vs the last planned pose after settling (0 without plan)
+
+  std::size_t joint_limit_violations = 0;  ///< steps with any joint beyond range + tolerance
+  double max_limit_excess = 0;             ///< [rad] worst excursion beyond a range (0: none)
+
+  double contact_time = 0;          ///< [s] simulated time in contact
+  double force_mean = 0;            ///< [N] mean normal force in contact
+  double force_rmse = 0;            ///< [N] RMS of (normal force − target) in contact
+  double force_max = 0;             ///< [N] max normal force
+  double removed_flash_volume = 0;  ///< [m^3] during this run
+  double removed_body_volume = 0;   ///< [m^3] during this run (gouging)
+  std::size_t removal_steps = 0;    ///< remove_material calls
+  bool has_residual = false;        ///< residual is filled (a grid was given)
+  ResidualReport residual;          ///< analyze_residual of the grid after the run
+
+  std::size_t steps = 0;       ///< MuJoCo steps taken
+  double timestep = 0;         ///< [s] the step used
+  double sim_time = 0;         ///< [s]
+  double wall_time = 0;        ///< [s] of the loop
+  double realtime_factor = 0;  ///< sim_time / wall_time
+  double step_cost = 0;        ///< [s] wall time per step
+};
+
+/// Runs `trajectory` on a copy of `model` (its timestep, ctrl ranges changed as described above),
+/// starting at rest at q_0 (velocities dq_0) with the other DOFs at qpos0; removes material from
+/// `grid` (in {C}; nullptr: no process model, free motion).
+/// @pre the model has the names listed at the top of this header; `grid` outlives the call.
+/// @throws ArgumentError (trajectory shapes, non-increasing or non-finite times/values, bad
+///   params, timestep > 0.001 s, bad tool/force params), InputError (a name missing from the
+///   model, an actuator that is not a position servo on its joint).
+ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& trajectory,
+                                   MaterialGrid* grid, const ToolParams& tool,
+                                   const ForceParams& force, const ExecParams& params = {});
+
+/// Same, loading the MJCF file first (e.g. the cell.xml of write_cell).
+/// @throws InputError when MuJoCo cannot load the file, and as above.
+ExecutionResult execute_trajectory(const std::string& mjcf_path, const JointTrajectory& trajectory,
+                                   MaterialGrid* grid, const ToolParams& tool,
+                                   const ForceParams& force, const ExecParams& params = {});
+
+/// Validates params. @throws ArgumentError naming the field (`execution.settle_time`, ...).
+void check_exec_params(const ExecParams& params);
+
+}  // namespace flashtwin::sim

@@ -1,0 +1,642 @@
+#include "flashtwin/sim/executor.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <deque>
+#include <string>
+
+#include "flashtwin/core/errors.hpp"
+#include "flashtwin/sim/mujoco_handles.hpp"
+
+namespace flashtwin::sim {
+
+namespace {
+
+[[noreturn]] void bad(const std::string& field, const std::string& expected, double got) {
+  throw ArgumentError("execution." + field + ": expected " + expected + ", got " +
+                      std::to_string(got));
+}
+
+// What the loop needs from the model: indices of the contract names and the servo gains.
+struct CellIndex {
+  int qadr[kNumJoints], dadr[kNumJoints], act[kNumJoints];
+  double lo[kNumJoints], hi[kNumJoints];
+  bool limited[kNumJoints];
+  double kp[kNumJoints];
+  int tcp = -1, tool = -1, casting = -1;
+  int force_adr = -1, torque_adr = -1, force_site = -1;
+};
+
+CellIndex index_model(const mjModel* m) {
+  CellIndex c;
+  for (int i = 0; i < kNumJoints; ++i) {
+    const std::string jname = "joint" + std::to_string(i + 1);
+    const int j = require_id(m, mjOBJ_JOINT, jname);
+    if (m->jnt_type[j] != mjJNT_HINGE)
+      throw InputError("model: expected joint '" + jname + "' to be a hinge");
+    c.qadr[i] = m->jnt_qposadr[j];
+    c.dadr[i] = m->jnt_dofadr[j];
+    c.limited[i] = m->jnt_limited[j] != 0;
+    c.lo[i] = c.limited[i] ? m->jnt_range[2 * j] : -1e300;
+    c.hi[i] = c.limited[i] ? m->jnt_range[2 * j + 1] : 1e300;
+
+    const std::string aname = "act" + std::to_string(i + 1);
+    const int a = require_id(m, mjOBJ_ACTUATOR, aname);
+    const double kp = m->actuator_gainprm[a * mjNGAIN];
+    const bool servo = m->actuator_trntype[a] == mjTRN_JOINT && m->actuator_trnid[2 * a] == j &&
+                       m->actuator_gaintype[a] == mjGAIN_FIXED &&
+                       m->actuator_biastype[a] == mjBIAS_AFFINE && kp > 0 &&
+                       std::abs(m->actuator_biasprm[a * mjNBIAS + 1] + kp) <= 1e-9 * kp &&
+                       std::abs(m->actuator_gear[6 * a] - 1.0) <= 1e-12;
+    if (!servo)
+      throw InputError("model: expected actuator '" + aname +
+                       "' to be a position servo (kp > 0, gear 1) on '" + jname + "'");
+    c.act[i] = a;
+    c.kp[i] = kp;
+  }
+  c.tcp = require_id(m, mjOBJ_SITE, "tcp");
+  c.tool = require_id(m, mjOBJ_BODY, "tool");
+  c.casting = require_id(m, mjOBJ_BODY, "casting");
+  const int fs = mj_name2id(m, mjOBJ_SENSOR, "flange_force");
+  const int ts = mj_name2id(m, mjOBJ_SENSOR, "flange_torque");
+  if (fs >= 0 && m->sensor_type[fs] == mjSENS_FORCE && m->sensor_objtype[fs] == mjOBJ_SITE) {
+    c.force_adr = m->sensor_adr[fs];
+    c.force_site = m->sensor_objid[fs];
+  }
+  if (ts >= 0 && m->sensor_type[ts] == mjSENS_TORQUE) c.torque_adr = m->sensor_adr[ts];
+  return c;
+}
+
+Vec3 vec3_at(const mjtNum* p) {
+  return Vec3(p[0], p[1], p[2]);
+}
+
+Mat3 mat3_at(const mjtNum* p) {
+  Mat3 R;
+  for (int r = 0; r < 3; ++r)
+    for (int k = 0; k < 3; ++k) R(r, k) = p[3 * r + k];
+  return R;
+}
+
+Pose pose_of(const mjtNum* pos, const mjtNum* mat) {
+  Pose X = Pose::Identity();
+  X.translation() = vec3_at(pos);
+  X.linear() = mat3_at(mat);
+  return X;
+}
+
+// Reference of one instant: position, velocity, acceleration.
+struct Reference {
+  Vector6 q, dq, ddq;
+};
+
+// Cubic Hermite interpolation through (t_k, q_k, dq_k); the last sample is held at rest after
+// the end. `seg` caches the segment of the previous (earlier or equal) time.
+Reference reference_at(const JointTrajectory& tr, const std::vector<Vector6>& dq, double t,
+                       std::size_t& seg) {
+  const std::size_t n = tr.t.size();
+  Reference r;
+  if (n == 1 || t >= tr.t.back()) {
+    r.q = tr.q.back();
+    r.dq.setZero();
+    r.ddq.setZero();
+    return r;
+  }
+  if (t <= tr.t.front()) t = tr.t.front();
+  while (seg + 2 < n && tr.t[seg + 1] <= t) ++seg;
+  const double h = tr.t[seg + 1] - tr.t[seg];
+  const double s = (t - tr.t[seg]) / h, s2 = s * s, s3 = s2 * s;
+  const Vector6 &q0 = tr.q[seg], &q1 = tr.q[seg + 1];
+  const Vector6 v0 = dq[seg] * h, v1 = dq[seg + 1] * h;
+  r.q = (2 * s3 - 3 * s2 + 1) * q0 + (s3 - 2 * s2 + s) * v0 + (-2 * s3 + 3 * s2) * q1 +
+        (s3 - s2) * v1;
+  r.dq = ((6 * s2 - 6 * s) * q0 + (3 * s2 - 4 * s + 1) * v0 + (-6 * s2 + 6 * s) * q1 +
+          (3 * s2 - 2 * s) * v1) /
+         h;
+  r.ddq = ((12 * s - 6) * q0 + (6 * s - 4) * v0 + (-12 * s + 6) * q1 + (6 * s - 2) * v1) / (h * h);
+  return r;
+}
+
+// Planned TCP position, linear between samples, held at the ends.
+Vec3 planned_position_at(const JointTrajectory& tr, double t, std::size_t& seg) {
+  const std::size_t n = tr.t.size();
+  if (n == 1 || t >= tr.t.back()) return tr.planned_tcp_W.back().translation();
+  if (t <= tr.t.front()) return tr.planned_tcp_W.front().translation();
+  while (seg + 2 < n && tr.t[seg + 1] <= t) ++seg;
+  const double s = (t - tr.t[seg]) / (tr.t[seg + 1] - tr.t[seg]);
+  return (1 - s) * tr.planned_tcp_W[seg].translation() +
+         s * tr.planned_tcp_W[seg + 1].translation();
+}
+
+void check_trajectory(const JointTrajectory& tr) {
+  const std::size_t n = tr.t.size();
+  if (n == 0) throw ArgumentError("execution.trajectory: expected at least 1 sample, got 0");
+  auto shape = [&](const char* field, std::size_t got, bool may_be_empty) {
+    if (got != n && !(may_be_empty && got == 0))
+      throw ArgumentError(std::string("execution.trajectory.") + field + ": expected " +
+                          std::to_string(n) + (may_be_empty ? " (or 0)" : "") +
+                          " samples like t, got " + std::to_string(got));
+  };
+  shape("q", tr.q.size(), false);
+  shape("dq", tr.dq.size(), true);
+  shape("planned_tcp_W", tr.planned_tcp_W.size(), true);
+  for (std::size_t k = 0; k < n; ++k) {
+    if (!std::isfinite(tr.t[k]) || (k > 0 && !(tr.t[k] > tr.t[k - 1])))
+      throw ArgumentError(
+          "execution.trajectory.t: expected finite, strictly increasing times, got " +
+          std::to_string(tr.t[k]) + " at sample " + std::to_string(k));
+    if (!tr.q[k].allFinite() || (!tr.dq.empty() && !tr.dq[k].allFinite()) ||
+        (!tr.planned_tcp_W.empty() && !tr.planned_tcp_W[k].matrix().allFinite()))
+      throw ArgumentError("execution.trajectory: expected finite values, got NaN/inf at sample " +
+                          std::to_string(k));
+  }
+}
+
+// Velocities by finite differences (central inside, one-sided at the ends) when none are given.
+std::vector<Vector6> velocities(const JointTrajectory& tr) {
+  if (!tr.dq.empty()) return tr.dq;
+  const std::size_t n = tr.t.size();
+  std::vector<Vector6> dq(n, Vector6::Zero());
+  if (n < 2) return dq;
+  for (std::size_t k = 0; k < n; ++k) {
+    const std::size_t a = k == 0 ? 0 : k - 1, b = k + 1 == n ? n - 1 : k + 1;
+    dq[k] = (tr.q[b] - tr.q[a]) / (tr.t[b] - tr.t[a]);
+  }
+  return dq;
+}
+
+// Unit vector from a point to the tool axis, perpendicular to it (along the axis into the shank
+// when the point lies on it): the process model's normal direction (grinding_force).
+Vec3 towards_axis(const ToolParams& tool, const Pose& X_CT, const Vec3& p_C) {
+  const Vec3 a = (tool.axis_sign * X_CT.linear().col(2)).normalized();
+  const Vec3 w = X_CT.translation() - p_C;
+  const Vec3 perp = w - a.dot(w) * a;
+  const double len = perp.norm();
+  return len > 1e-3 * tool.radius ? Vec3(perp / len) : a;
+}
+
+// The rate (grinding) part of a process wrench in {C}, torque about the TCP.
+struct RateWrench {
+  Vec3 force = Vec3::Zero(), torque = Vec3::Zero();
+  double normal = 0, tangential = 0;
+  RateWrench scaled(double s) const { return {s * force, s * torque, s * normal, s * tangential}; }
+  void add(const RateWrench& o) {
+    force += o.force;
+    torque += o.torque;
+    normal += o.normal;
+    tangential += o.tangential;
+  }
+};
+
+// One removal interval: distance travelled, displacement ({C}) and the rate wrench's impulse.
+struct RemovalInterval {
+  double ds = 0;
+  Vec3 dp_C = Vec3::Zero();
+  RateWrench impulse;  // [N·s], [N·m·s]
+};
+
+bool bad_state(const mjModel* m, const mjData* d) {
+  if (d->warning[mjWARN_BADQACC].number > 0 || d->warning[mjWARN_BADQPOS].number > 0 ||
+      d->warning[mjWARN_BADQVEL].number > 0)
+    return true;
+  for (int i = 0; i < m->nq; ++i)
+    if (!std::isfinite(d->qpos[i])) return true;
+  return false;
+}
+
+}  // namespace
+
+const char* to_string(ExecStatus status) {
+  switch (status) {
+    case ExecStatus::kOk:
+      return "ok";
+    case ExecStatus::kReferenceClamped:
+      return "reference_clamped";
+    case ExecStatus::kUnstable:
+      return "unstable";
+  }
+  return "?";
+}
+
+void check_exec_params(const ExecParams& p) {
+  if (!(std::isfinite(p.timestep) && p.timestep >= 0 && p.timestep <= 1e-3))
+    bad("timestep", "0 (the model's) or a step in (0, 0.001] [s]", p.timestep);
+  if (!(std::isfinite(p.settle_time) && p.settle_time >= 0))
+    bad("settle_time", "a finite time >= 0 [s]", p.settle_time);
+  if (p.log_decimation < 1) bad("log_decimation", "an integer >= 1", p.log_decimation);
+  if (!(std::isfinite(p.limit_margin) && p.limit_margin >= 0))
+    bad("limit_margin", "a finite angle >= 0 [rad]", p.limit_margin);
+  if (!(std::isfinite(p.joint_tolerance) && p.joint_tolerance >= 0))
+    bad("joint_tolerance", "a finite angle >= 0 [rad]", p.joint_tolerance);
+  if (!(std::isfinite(p.removal_motion) && p.removal_motion >= 0))
+    bad("removal_motion", "a finite number of voxels >= 0", p.removal_motion);
+  if (!(std::isfinite(p.removal_max_interval) && p.removal_max_interval > 0))
+    bad("removal_max_interval", "a finite time > 0 [s]", p.removal_max_interval);
+  if (!(std::isfinite(p.rate_window) && p.rate_window >= 0.5))
+    bad("rate_window", "a finite number of voxels >= 0.5", p.rate_window);
+  const ForceControlParams& f = p.force_control;
+  if (!(std::isfinite(f.target_force) && f.target_force >= 0))
+    bad("force_control.target_force", "a finite force >= 0 [N]", f.target_force);
+  if (!(std::isfinite(f.gain) && f.gain >= 0))
+    bad("force_control.gain", "a finite gain >= 0 [m/(N*s)]", f.gain);
+  if (!(std::isfinite(f.max_correction) && f.max_correction >= 0))
+    bad("force_control.max_correction", "a finite distance >= 0 [m]", f.max_correction);
+  if (!(std::isfinite(f.release_time) && f.release_time > 0))
+    bad("force_control.release_time", "a finite time > 0 [s]", f.release_time);
+}
+
+ExecutionResult execute_trajectory(const std::string& mjcf_path, const JointTrajectory& trajectory,
+                                   MaterialGrid* grid, const ToolParams& tool,
+                                   const ForceParams& force, const ExecParams& params) {
+  const MjModelPtr m = load_mjcf_file(mjcf_path);
+  return execute_trajectory(*m, trajectory, grid, tool, force, params);
+}
+
+ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& trajectory,
+                                   MaterialGrid* grid, const ToolParams& tool,
+                                   const ForceParams& force, const ExecParams& params) {
+  check_exec_params(params);
+  check_trajectory(trajectory);
+  check_tool_params(tool);
+  check_force_params(force);
+  const double h = params.timestep > 0 ? params.timestep : model.opt.timestep;
+  if (!(h > 0 && h <= 1e-3 * (1 + 1e-12)))
+    bad("timestep", "a MuJoCo step <= 0.001 s (>= 1 kHz); the model's is too long", h);
+
+  // Our own copy: the step may change and the servos' ctrlrange is lifted so the feed-forward
+  // offset can ride on ctrl (references are clamped here; forcerange still limits torque).
+  const MjModelPtr mp(mj_copyModel(nullptr, &model));
+  mjModel* m = mp.get();
+  m->opt.timestep = h;
+  const CellIndex c = index_model(m);
+  for (int i = 0; i < kNumJoints; ++i) m->actuator_ctrllimited[c.act[i]] = 0;
+  const MjDataPtr data_ptr = make_data(m);
+  const MjDataPtr ffp = make_data(m);  // scratch for inverse dynamics at the reference
+  mjData* d = data_ptr.get();
+  mjData* dff = ffp.get();
+
+  const std::vector<Vector6> dq_samples = velocities(trajectory);
+  const double t0 = trajectory.t.front();
+  const std::size_t n_samples = trajectory.t.size();
+  const bool tracking = !trajectory.planned_tcp_W.empty();
+  const ForceControlParams& fc = params.force_control;
+  const double margin = params.limit_margin, tol = params.joint_tolerance;
+
+  ExecutionResult res;
+  res.timestep = h;
+
+  // Joint-range clamp of a command; flags the first clamp.
+  auto clamp_command = [&](Vector6& q, Vector6* dq, Vector6* ddq, double t) {
+    bool any = false;
+    for (int i = 0; i < kNumJoints; ++i) {
+      if (!c.limited[i]) continue;
+      const double lo = std::min(c.lo[i] + margin, 0.5 * (c.lo[i] + c.hi[i]));
+      const double hi = std::max(c.hi[i] - margin, 0.5 * (c.lo[i] + c.hi[i]));
+      if (q[i] >= lo && q[i] <= hi) continue;
+      q[i] = std::clamp(q[i], lo, hi);
+      if (dq) (*dq)[i] = 0;
+      if (ddq) (*ddq)[i] = 0;
+      if (!any && res.first_clamp_joint < 0) {
+        res.first_clamp_joint = i;
+        res.first_clamp_time = t;
+      }
+      any = true;
+    }
+    return any;
+  };
+  auto read_q = [&]() {
+    Vector6 q;
+    for (int i = 0; i < kNumJoints; ++i) q[i] = d->qpos[c.qadr[i]];
+    return q;
+  };
+  auto check_limits = [&]() {
+    double worst = 0;
+    for (int i = 0; i < kNumJoints; ++i) {
+      if (!c.limited[i]) continue;
+      const double q = d->qpos[c.qadr[i]];
+      worst = std::max({worst, c.lo[i] - q, q - c.hi[i]});
+    }
+    res.max_limit_excess = std::max(res.max_limit_excess, worst);
+    if (worst > tol) ++res.joint_limit_violations;
+  };
+
+  // Initial state: at rest at q_0 (clamped into range), servos holding it.
+  mj_resetData(m, d);
+  {
+    Vector6 q0 = trajectory.q.front();
+    Vector6 dq0 = dq_samples.front();
+    if (clamp_command(q0, &dq0, nullptr, 0.0)) ++res.clamped_steps;
+    for (int i = 0; i < kNumJoints; ++i) {
+      d->qpos[c.qadr[i]] = q0[i];
+      d->qvel[c.dadr[i]] = dq0[i];
+      d->ctrl[c.act[i]] = q0[i];
+    }
+  }
+  mj_forward(m, d);
+  mju_copy(dff->qpos, m->qpos0, m->nq);
+
+  // The casting is fixed: {C} in {W} once.
+  const Pose X_WC = pose_of(d->xpos + 3 * c.casting, d->xmat + 9 * c.casting);
+  const Pose X_CW = X_WC.inverse();
+  const Mat3 R_WC = X_WC.linear();
+
+  // Process state between removal steps: the last removal step's wrench split into its rate
+  // part (grinding, dissipative) and its penalty part (elastic), {C}, torques about the TCP,
+  // held until the next removal step. With implicit_rate_force `rate` is per unit feed speed
+  // (impulses of the intervals over the last rate_window voxels of travel / their net progress,
+  // along `feed_C`); otherwise it is the wrench itself.
+  RateWrench rate;
+  Vec3 feed_C = Vec3::Zero();
+  std::deque<RemovalInterval> window;
+  Vec3 pen_F_C = Vec3::Zero(), pen_tau_C = Vec3::Zero();
+  double penalty = 0;
+  // The wrench applied to the tool: {W}, torque about the TCP.
+  Vec3 F_W = Vec3::Zero(), tau_W = Vec3::Zero();
+  double normal_force = 0, tangential_force = 0;
+  bool have_removal_pose = false, in_contact = false;
+  double last_contact = -1e300;  // [s] simulated time of the last step in contact
+  Pose X_CT_last = Pose::Identity();
+  double since_removal = 0, removed_total = 0;
+  Vec3 normal_W = Vec3::Zero();  // last contact normal (material → tool axis)
+  double delta = 0;              // admittance correction into the material [m]
+  const double motion_trigger = grid ? params.removal_motion * grid->voxel_size() : 0;
+
+  double track_sq = 0, force_sum = 0, force_err_sq = 0;
+  std::size_t contact_steps = 0;
+  std::size_t next_sample = 0, ref_seg = 0, plan_seg = 0;
+
+  const double span = trajectory.t.back() - t0;
+  const std::size_t traj_steps = static_cast<std::size_t>(std::ceil(span / h - 1e-9));
+  const std::size_t total_steps =
+      traj_steps + static_cast<std::size_t>(std::llround(params.settle_time / h));
+  std::vector<mjtNum> jacp(3 * m->nv), jacr(3 * m->nv), x3(3 * m->nv);
+
+  auto compare_samples = [&](double t, const Pose& X_WT, double horizon) {
+    while (next_sample < n_samples && trajectory.t[next_sample] <= t + horizon) {
+      const Pose& P = trajectory.planned_tcp_W[next_sample];
+      const double e = (X_WT.translation() - P.translation()).norm();
+      track_sq += e * e;
+      res.tracking_max = std::max(res.tracking_max, e);
+      res.tracking_max_rotation =
+          std::max(res.tracking_max_rotation, rotation_distance(X_WT.linear(), P.linear()));
+      ++res.tracking_samples;
+      ++next_sample;
+    }
+  };
+  auto tcp_velocity_W = [&]() {
+    mjtNum vel[6];
+    mj_objectVelocity(m, d, mjOBJ_SITE, c.tcp, vel, 0);
+    return Vec3(vel[3], vel[4], vel[5]);
+  };
+
+  const auto wall0 = std::chrono::steady_clock::now();
+  std::size_t n = 0;
+  for (; n < total_steps; ++n) {
+    const double t_sim = static_cast<double>(n) * h;
+    const double t = t0 + t_sim;
+    mj_step1(m, d);  // positions, velocities (and their sensors) of the current state
+
+    const Pose X_WT = pose_of(d->site_xpos + 3 * c.tcp, d->site_xmat + 9 * c.tcp);
+    const Vector6 q_now = read_q();
+    check_limits();
+    if (tracking) compare_samples(t, X_WT, 0.5 * h);
+
+    // Process model: material removal and the grinding wrench on the tool.
+    if (grid) {
+      since_removal += h;
+      const Pose X_CT = X_CW * X_WT;
+      double moved = 1e300;
+      if (have_removal_pose)
+        moved = (X_CT.translation() - X_CT_last.translation()).norm() +
+                rotation_distance(X_CT.linear(), X_CT_last.linear()) * tool.length;
+      // Every step while the tool presses on the body: the penalty is a stiff spring and must
+      // follow the tool's depth without delay.
+      if (moved >= motion_trigger || since_removal >= params.removal_max_interval - 1e-12 ||
+          penalty > 0) {
+        const Vec3 v_CT = X_CW.linear() * tcp_velocity_W();
+        const StepRemoval step = remove_material(tool, *grid, X_CT);
+        const GrindingWrench w = grinding_force(force, tool, step, since_removal, X_CT, v_CT);
+        pen_F_C.setZero();
+        pen_tau_C.setZero();
+        if (w.penalty_force > 0 && step.contact_count > 0) {
+          // The penalty part as grinding_force builds it: along the normal at the contact centroid.
+          pen_F_C = w.penalty_force * towards_axis(tool, X_CT, step.contact_centroid_C);
+          pen_tau_C = (step.contact_centroid_C - X_CT.translation()).cross(pen_F_C);
+        }
+        rate = {w.force_C - pen_F_C, w.torque_C - pen_tau_C, w.normal_force - w.penalty_force,
+                w.tangential_force};
+        penalty = w.penalty_force;
+        if (params.implicit_rate_force) {
+          // Per unit feed speed over the last rate_window voxels of travel: removal comes in
+          // whole voxels, so the cross-section the tool cuts is only meaningful over a few. The
+          // first step has no interval (material the tool starts in costs no rate force).
+          RemovalInterval iv;
+          if (have_removal_pose) {
+            iv.dp_C = X_CT.translation() - X_CT_last.translation();
+            iv.ds = iv.dp_C.norm();
+            iv.impulse = rate.scaled(since_removal);
+          }
+          window.push_back(iv);
+          const double L = params.rate_window * grid->voxel_size();
+          double travel = 0;
+          for (const RemovalInterval& e : window) travel += e.ds;
+          while (window.size() > 1 && travel - window.front().ds >= L) {
+            travel -= window.front().ds;
+            window.pop_front();
+          }
+          // Sums from scratch: a handful of intervals, and no drift.
+          rate = RateWrench{};
+          Vec3 dp = Vec3::Zero();
+          for (const RemovalInterval& e : window) {
+            rate.add(e.impulse);
+            dp += e.dp_C;
+          }
+          // Per unit of net progress (vibration adds path length, not cutting).
+          rate = rate.scaled(1 / std::max(dp.norm(), 0.5 * grid->voxel_size()));
+          feed_C = dp.norm() > 1e-12 ? Vec3(dp.normalized()) : Vec3::Zero();
+        }
+        res.removed_flash_volume += step.flash_volume;
+        res.removed_body_volume += step.body_volume;
+        removed_total += step.volume();
+        ++res.removal_steps;
+        if (step.count() > 0)
+          normal_W = R_WC * towards_axis(tool, X_CT, step.centroid_C);
+        else if (step.contact_count > 0)
+          normal_W = R_WC * towards_axis(tool, X_CT, step.contact_centroid_C);
+        X_CT_last = X_CT;
+        have_removal_pose = true;
+        since_removal = 0;
+      }
+    }
+
+    // Reference, admittance correction, clamp, feed-forward → servo set-points.
+    Reference r = reference_at(trajectory, dq_samples, t, ref_seg);
+    if (fc.enabled) {
+      // Admittance while in contact or shortly after (the tool may bounce off); released once
+      // the contact has been lost for release_time.
+      if (t_sim - last_contact <= fc.release_time)
+        delta += fc.gain * (fc.target_force - normal_force) * h;
+      else
+        delta -= delta * std::min(1.0, h / fc.release_time);
+      delta = std::clamp(delta, -fc.max_correction, fc.max_correction);
+      if (delta != 0 && normal_W.squaredNorm() > 0) {
+        // Δq = Jᵀ(J·Jᵀ + λ²I)⁻¹·[−δ·n; 0]: translate the TCP into the material, keep orientation.
+        mj_jacSite(m, d, jacp.data(), jacr.data(), c.tcp);
+        Matrix6 J;
+        for (int i = 0; i < kNumJoints; ++i)
+          for (int k = 0; k < 3; ++k) {
+            J(k, i) = jacp[k * m->nv + c.dadr[i]];
+            J(3 + k, i) = jacr[k * m->nv + c.dadr[i]];
+          }
+        Vector6 dx = Vector6::Zero();
+        dx.head<3>() = -delta * normal_W;
+        const Matrix6 A = J * J.transpose() + 1e-6 * Matrix6::Identity();
+        r.q += J.transpose() * A.ldlt().solve(dx);
+      }
+    }
+    if (clamp_command(r.q, &r.dq, &r.ddq, t_sim)) ++res.clamped_steps;
+    Vector6 tau_ff = Vector6::Zero();
+    if (params.feedforward) {
+      for (int i = 0; i < kNumJoints; ++i) {
+        dff->qpos[c.qadr[i]] = r.q[i];
+        dff->qvel[c.dadr[i]] = r.dq[i];
+        dff->qacc[c.dadr[i]] = r.ddq[i];
+      }
+      mj_inverse(m, dff);
+      for (int i = 0; i < kNumJoints; ++i) tau_ff[i] = dff->qfrc_inverse[c.dadr[i]];
+    }
+    for (int i = 0; i < kNumJoints; ++i) d->ctrl[c.act[i]] = r.q[i] + tau_ff[i] / c.kp[i];
+
+    // The wrench applied this step. The rate part (grinding) is a resistance to the feed: with
+    // implicit_rate_force it is the per-speed wrench times the feed speed at the end of the step,
+    // solved implicitly along the feed direction d (as MuJoCo treats joint damping): with the
+    // TCP's inverse inertia Λ⁻¹ = Jp·M⁻¹·Jpᵀ and its acceleration a without the rate force,
+    // s⁺ = (d·v + h·d·a) / (1 − h·dᵀΛ⁻¹G). Applied explicitly, a removal rate taken over whole
+    // voxels acts like a damper far stiffer than the tool's mass allows over one step and throws
+    // the tool back and forth (stick-slip chatter).
+    const Vec3 G_W = R_WC * rate.force, pen_F_W = R_WC * pen_F_C;
+    double speed = 1;  // explicit: `rate` is the wrench itself
+    if (params.implicit_rate_force) {
+      speed = 0;
+      const Vec3 d_W = R_WC * feed_C;
+      // Only a wrench that resists the feed is applied (the window may lag a reversal).
+      if (G_W.dot(d_W) < 0) {
+        mj_jacSite(m, d, jacp.data(), nullptr, c.tcp);
+        mj_solveM(m, d, x3.data(), jacp.data(), 3);  // rows of M⁻¹·Jpᵀ
+        mj_fwdActuation(m, d);                       // servo forces of this step's ctrl
+        Mat3 L_inv = Mat3::Zero();
+        Vec3 a = Vec3::Zero();
+        for (int k = 0; k < m->nv; ++k) {
+          const double tau =
+              d->qfrc_actuator[k] + d->qfrc_passive[k] - d->qfrc_bias[k] + d->qfrc_applied[k];
+          for (int i = 0; i < 3; ++i) {
+            a[i] += x3[i * m->nv + k] * tau;
+            for (int j = 0; j < 3; ++j) L_inv(i, j) += jacp[i * m->nv + k] * x3[j * m->nv + k];
+          }
+        }
+        a += L_inv * pen_F_W;
+        const double s_free = d_W.dot(tcp_velocity_W()) + h * d_W.dot(a);
+        const double resist = std::max(0.0, -d_W.dot(L_inv * G_W));
+        speed = std::max(0.0, s_free / (1 + h * resist));
+      }
+    }
+    F_W = speed * G_W + pen_F_W;
+    tau_W = R_WC * (speed * rate.torque + pen_tau_C);
+    normal_force = speed * rate.normal + penalty;
+    tangential_force = speed * rate.tangential;
+    {
+      // xfrc_applied: world-frame force at the body's COM; shift the moment from the TCP.
+      const Vec3 tau_com = tau_W + (X_WT.translation() - vec3_at(d->xipos + 3 * c.tool)).cross(F_W);
+      mjtNum* xf = d->xfrc_applied + 6 * c.tool;
+      for (int k = 0; k < 3; ++k) {
+        xf[k] = F_W[k];
+        xf[3 + k] = tau_com[k];
+      }
+    }
+    // In contact: the process acts on the tool (removal over the rate window with the tool
+    // feeding, or penetration of the body).
+    in_contact = normal_force > 0 || tangential_force > 0;
+    if (in_contact) {
+      last_contact = t_sim;
+      ++contact_steps;
+      force_sum += normal_force;
+      const double e = normal_force - fc.target_force;
+      force_err_sq += e * e;
+      res.force_max = std::max(res.force_max, normal_force);
+    }
+
+    mj_step2(m, d);  // actuation, acceleration, force sensors of this state; integrate
+
+    if (n % static_cast<std::size_t>(params.log_decimation) == 0 || n + 1 == total_steps) {
+      ExecutionLog& L = res.log;
+      L.t.push_back(t_sim);
+      L.q.push_back(q_now);
+      L.q_ref.push_back(r.q);
+      L.tcp_W.push_back(X_WT.translation());
+      if (tracking) L.planned_tcp_W.push_back(planned_position_at(trajectory, t, plan_seg));
+      L.normal_force.push_back(normal_force);
+      L.tangential_force.push_back(tangential_force);
+      L.process_force_W.push_back(F_W);
+      if (c.force_adr >= 0) {
+        const Vec3 f_E = vec3_at(d->sensordata + c.force_adr);
+        L.sensor_force_E.push_back(f_E);
+        L.sensor_force_W.push_back(mat3_at(d->site_xmat + 9 * c.force_site) * f_E);
+      }
+      if (c.torque_adr >= 0) L.sensor_torque_E.push_back(vec3_at(d->sensordata + c.torque_adr));
+      L.removed_volume.push_back(removed_total);
+      L.correction.push_back(delta);
+    }
+    if (params.on_step) params.on_step(m, d, d->time);
+    if (bad_state(m, d)) {
+      res.status = ExecStatus::kUnstable;
+      res.message = "MuJoCo reported an unstable state at t = " + std::to_string(t_sim) +
+                    " s; execution stopped";
+      ++n;
+      break;
+    }
+  }
+  const auto wall1 = std::chrono::steady_clock::now();
+
+  // Final state: remaining samples (trajectory end without settling) and the final error.
+  mj_forward(m, d);
+  if (res.status != ExecStatus::kUnstable) {
+    check_limits();
+    const Pose X_WT = pose_of(d->site_xpos + 3 * c.tcp, d->site_xmat + 9 * c.tcp);
+    if (tracking) {
+      compare_samples(1e300, X_WT, 0);
+      res.final_error = (X_WT.translation() - trajectory.planned_tcp_W.back().translation()).norm();
+    }
+  }
+
+  res.steps = n;
+  res.sim_time = static_cast<double>(n) * h;
+  res.wall_time = std::chrono::duration<double>(wall1 - wall0).count();
+  res.realtime_factor = res.wall_time > 0 ? res.sim_time / res.wall_time : 0;
+  res.step_cost = n > 0 ? res.wall_time / static_cast<double>(n) : 0;
+  if (res.tracking_samples > 0)
+    res.tracking_rmse = std::sqrt(track_sq / static_cast<double>(res.tracking_samples));
+  res.contact_time = static_cast<double>(contact_steps) * h;
+  if (contact_steps > 0) {
+    res.force_mean = force_sum / static_cast<double>(contact_steps);
+    res.force_rmse = std::sqrt(force_err_sq / static_cast<double>(contact_steps));
+  }
+  if (grid) {
+    res.residual = analyze_residual(*grid);
+    res.has_residual = true;
+  }
+  if (res.status != ExecStatus::kUnstable) {
+    if (res.first_clamp_joint >= 0) {
+      res.status = ExecStatus::kReferenceClamped;
+      res.message = "reference of joint" + std::to_string(res.first_clamp_joint + 1) +
+                    " left its range (less a margin of " + std::to_string(margin) +
+                    " rad) at t = " + std::to_string(res.first_clamp_time) + " s; clamped in " +
+                    std::to_string(res.clamped_steps) + " steps";
+    } else {
+      res.message = "ok";
+    }
+  }
+  return res;
+}
+
+}  // namespace flashtwin::sim
