@@ -224,32 +224,13 @@ int cmd_cell(const Common& c, const std::string& scenario_path, const std::strin
 }
 
 // Builds the scenario's cell in out/cell and scans it; writes the scan files into out.
-struct ScanRun {
-  ft::pipeline::CellSetup setup;
-  ft::sim::CellFiles files;
-  ft::sim::CellScan scan;
-};
+using ScanRun = ft::pipeline::ScenarioScan;
 
 ScanRun run_scan(const ft::pipeline::Scenario& sc, const std::string& out) {
-  ScanRun r;
-  r.setup = ft::pipeline::setup_cell(sc);
-  r.files = ft::sim::write_cell(sc.robot, r.setup.spec, r.setup.casting,
-                                (std::filesystem::path(out) / "cell").string());
-  const ft::Pose X_WM_true = ft::sim::perturb_pose(r.setup.spec.X_WM, sc.calibration_translation,
-                                                   sc.calibration_rotation, sc.seed);
-  r.scan = ft::sim::scan_cell(r.files.mjcf, r.setup.casting, sc.scan, r.setup.spec.X_WM, X_WM_true);
-  const auto& res = r.scan.result;
   namespace fs = std::filesystem;
-  // The scan as a sensor delivers it: points only (the simulator's exact surface normals are
-  // ground truth; perception estimates its own).
-  ft::PointCloud points;
-  points.points = res.cloud_M.points;
-  ft::save_ply((fs::path(out) / "scan.ply").string(), points);
-  ft::save_pcd((fs::path(out) / "scan.pcd").string(), points);
-  // Ground-truth labels live apart from the scan: perception never reads them.
-  ft::PointCloud labelled = points;
-  labelled.labels = res.truth;
-  ft::save_ply((fs::path(out) / "cell" / "truth" / "scan_labels.ply").string(), labelled);
+  ScanRun r = ft::pipeline::scan_scenario(sc, (fs::path(out) / "cell").string(), sc.scan.threads);
+  ft::pipeline::save_scan(r, out, true);
+  const auto& res = r.scan.result;
   json meta;
   meta["frame"] = "M (scanner)";
   meta["X_WM"] = pose_json(r.scan.X_WM_nominal);

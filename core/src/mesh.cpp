@@ -13,6 +13,21 @@
 
 namespace flashtwin {
 
+TriangleMesh box_mesh(const Vec3& lo, const Vec3& hi) {
+  TriangleMesh mesh;
+  for (int i = 0; i < 8; ++i)
+    mesh.vertices.emplace_back((i & 1) ? hi.x() : lo.x(), (i & 2) ? hi.y() : lo.y(),
+                               (i & 4) ? hi.z() : lo.z());
+  // Vertex i has bits (x, y, z); each face as two counter-clockwise triangles seen from outside.
+  const int faces[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4},
+                           {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
+  for (const auto& f : faces) {
+    mesh.triangles.emplace_back(f[0], f[1], f[2]);
+    mesh.triangles.emplace_back(f[0], f[2], f[3]);
+  }
+  return mesh;
+}
+
 double TriangleMesh::volume() const {
   double v = 0;
   for (const auto& t : triangles)

@@ -57,26 +57,25 @@ void check_params(const DetectionParams& p) {
   if (p.smoothing < 0) bad("smoothing", ">= 0", p.smoothing);
 }
 
+// A plane through c with unit normal n; after a fit, axes holds the principal directions
+// (columns by increasing spread: normal, minor, major).
 struct Plane {
+  Vec3 c = Vec3::Zero();
   Vec3 n = Vec3::UnitZ();
-  double d = 0;  // n·p + d = 0
-  double dist(const Vec3& p) const { return n.dot(p) + d; }
+  Mat3 axes = Mat3::Identity();
+  double dist(const Vec3& p) const { return n.dot(p - c); }
 };
 
 // Least-squares plane (PCA) of a point set: normal = smallest eigenvector.
-Plane fit_plane(const std::vector<Vec3>& pts, Vec3* eigenvalues = nullptr,
-                Mat3* axes = nullptr) {
-  Vec3 c = Vec3::Zero();
-  for (const auto& p : pts) c += p;
-  c /= static_cast<double>(std::max<std::size_t>(1, pts.size()));
-  Mat3 C = Mat3::Zero();
-  for (const auto& p : pts) C += (p - c) * (p - c).transpose();
-  Eigen::SelfAdjointEigenSolver<Mat3> es(C);
+Plane fit_plane(const std::vector<Vec3>& pts) {
   Plane pl;
-  pl.n = es.eigenvectors().col(0).normalized();
-  pl.d = -pl.n.dot(c);
-  if (eigenvalues) *eigenvalues = es.eigenvalues() / std::max<std::size_t>(1, pts.size());
-  if (axes) *axes = es.eigenvectors();
+  for (const auto& p : pts) pl.c += p;
+  pl.c /= static_cast<double>(std::max<std::size_t>(1, pts.size()));
+  Mat3 C = Mat3::Zero();
+  for (const auto& p : pts) C += (p - pl.c) * (p - pl.c).transpose();
+  Eigen::SelfAdjointEigenSolver<Mat3> es(C);
+  pl.axes = es.eigenvectors();
+  pl.n = pl.axes.col(0).normalized();
   return pl;
 }
 
@@ -221,10 +220,7 @@ std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double ga
     const double ends = (pl.points.front() - pl.points.back()).norm();
     double turn = 0;
     if (pl.points.size() > 3) {
-      Vec3 ev;
-      Mat3 ax;
-      fit_plane(pl.points, &ev, &ax);
-      const Vec3 nrm = ax.col(0);
+      const Vec3 nrm = fit_plane(pl.points).n;
       for (std::size_t i = 2; i < pl.points.size(); ++i) {
         const Vec3 u = pl.points[i - 1] - pl.points[i - 2], v = pl.points[i] - pl.points[i - 1];
         turn += std::atan2(nrm.dot(u.cross(v)), u.dot(v));
@@ -375,8 +371,9 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
         const Vec3 c = pc[cand[pool[static_cast<std::size_t>(rng.uniform() * pool.size())]]];
         Vec3 nn = (b - a).cross(c - a);
         if (nn.norm() < 1e-12) continue;
-        Plane pl{nn.normalized(), 0};
-        pl.d = -pl.n.dot(a);
+        Plane pl;
+        pl.n = nn.normalized();
+        pl.c = a;
         std::size_t count = 0;
         for (std::size_t q = 0; q < pool.size(); q += probe_step)
           count += std::abs(pl.dist(pc[cand[pool[q]]])) < P.support_distance;
@@ -399,8 +396,8 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
         smax = std::max(smax, s);
       }
       const bool support = smin > -P.support_side_tolerance || smax < P.support_side_tolerance;
-      spdlog::debug("detect: plane {} n=({:.3f},{:.3f},{:.3f}) d={:.4f}: {} inliers, CAD side [{:.4f}, {:.4f}] -> {}",
-                    plane_no, best.n.x(), best.n.y(), best.n.z(), best.d, inl.size(), smin, smax,
+      spdlog::debug("detect: plane {} n=({:.3f},{:.3f},{:.3f}) offset {:.4f}: {} inliers, CAD side [{:.4f}, {:.4f}] -> {}",
+                    plane_no, best.n.x(), best.n.y(), best.n.z(), best.n.dot(best.c), inl.size(), smin, smax,
                     support ? "support" : "kept");
       if (support) {
         // Drop the plane's points and anything behind it (away from the part).
@@ -474,12 +471,10 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
     std::vector<Vec3> pts;
     pts.reserve(cl.size());
     std::size_t touching = 0;
-    double hmax = 0;
     for (auto s : cl) {
       const auto k = cand[live[s]];
       pts.push_back(pc[k]);
       touching += dist[k] < inner_limit;
-      hmax = std::max(hmax, dist[k]);
     }
     // A flash grows out of the casting: a cluster that never comes near the surface is
     // something else (fixture, robot, stray points).
@@ -487,22 +482,24 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       spdlog::debug("detect: cluster of {} points never near the CAD: dropped", cl.size());
       continue;
     }
-    Vec3 ev;
-    Mat3 axes;
-    const Plane fin = fit_plane(pts, &ev, &axes);
+    // Heights: the distances were searched only up to `far`; a flash region's own points get
+    // their full distance to the CAD (fins stand up to centimetres off the surface).
+    std::vector<double> height(cl.size());
+    double hmax = 0;
+    for (std::size_t i = 0; i < cl.size(); ++i) {
+      const double d = dist[cand[live[cl[i]]]];
+      height[i] = d < far ? d : cad_C.closest(pts[i]).distance;
+      hmax = std::max(hmax, height[i]);
+    }
+    const Plane fin = fit_plane(pts);
     FlashRegion reg;
     reg.points.reserve(cl.size());
     for (auto s : cl) reg.points.push_back(crop[cand[live[s]]]);
-    reg.centroid_C = -fin.d * fin.n;
-    {
-      Vec3 c = Vec3::Zero();
-      for (const auto& p : pts) c += p;
-      reg.centroid_C = c / static_cast<double>(pts.size());
-    }
+    reg.centroid_C = fin.c;
     // The fin normal faces the scanner (the origin of {M}).
     reg.normal_C = fin.n;
     if (reg.normal_C.dot(X_CM.translation() - reg.centroid_C) < 0) reg.normal_C = -reg.normal_C;
-    const Vec3 e1 = axes.col(2), e2 = axes.col(1);
+    const Vec3 e1 = fin.axes.col(2), e2 = fin.axes.col(1);
     double u0 = 1e300, u1 = -1e300, v0 = 1e300, v1 = -1e300;
     std::vector<Eigen::Vector2d> uv(pts.size());
     for (std::size_t i = 0; i < pts.size(); ++i) {
@@ -519,7 +516,7 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
     // Alpha-shape boundary. Only the points near the casting can be on the inner boundary,
     // so the rolling circle is tried there (the outer boundary is not needed for the path).
     std::vector<bool> test(pts.size());
-    for (std::size_t i = 0; i < pts.size(); ++i) test[i] = dist[cand[live[cl[i]]]] < inner_limit;
+    for (std::size_t i = 0; i < pts.size(); ++i) test[i] = height[i] < inner_limit;
     const auto bnd = alpha_boundary(uv, alpha, test);
     std::vector<Vec3> inner;
     std::vector<Vec3> inner_n;
@@ -553,7 +550,7 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
     }
     std::vector<double> h_outer, h_inner;
     for (std::size_t i = 0; i < pts.size(); ++i)
-      if (dist[cand[live[cl[i]]]] > 0.5 * hmax) h_outer.push_back(wk.w.dot(pts[i]));
+      if (height[i] > 0.5 * hmax) h_outer.push_back(wk.w.dot(pts[i]));
     for (const auto& p : inner) h_inner.push_back(wk.w.dot(p));
     wk.top = percentile(h_inner, 0.5);
     if (h_outer.size() >= 20) {
@@ -633,14 +630,9 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
         }
         std::vector<Vec3> loc;
         for (const auto& e : nb) loc.push_back(tp[e.first]);
-        Vec3 ev;
-        Mat3 ax;
-        fit_plane(loc, &ev, &ax);
-        Vec3 c = Vec3::Zero();
-        for (const auto& q : loc) c += q;
-        c /= static_cast<double>(loc.size());
-        const Vec3 dir = ax.col(2);
-        moved[i] = c + dir.dot(tp[i] - c) * dir;
+        const Plane local = fit_plane(loc);
+        const Vec3 dir = local.axes.col(2);
+        moved[i] = local.c + dir.dot(tp[i] - local.c) * dir;
       }
       tp = std::move(moved);
     }

@@ -133,6 +133,28 @@ std::vector<std::string> check_expectations(const Scenario& sc, const json& metr
   return bad;
 }
 
+ScenarioScan scan_scenario(const Scenario& sc, const std::string& cell_dir, int threads) {
+  ScenarioScan s;
+  s.setup = setup_cell(sc);
+  s.files = sim::write_cell(sc.robot, s.setup.spec, s.setup.casting, cell_dir);
+  sim::ScanParams params = sc.scan;
+  params.threads = std::max(1, threads);
+  const Pose X_WM_true = sim::perturb_pose(s.setup.spec.X_WM, sc.calibration_translation,
+                                           sc.calibration_rotation, sc.seed);
+  s.scan = sim::scan_cell(s.files.mjcf, s.setup.casting, params, s.setup.spec.X_WM, X_WM_true);
+  return s;
+}
+
+void save_scan(const ScenarioScan& s, const std::string& dir, bool pcd) {
+  PointCloud points;
+  points.points = s.scan.result.cloud_M.points;
+  save_ply((fs::path(dir) / "scan.ply").string(), points);
+  if (pcd) save_pcd((fs::path(dir) / "scan.pcd").string(), points);
+  PointCloud labelled = points;
+  labelled.labels = s.scan.result.truth;
+  save_ply((fs::path(s.files.truth) / "scan_labels.ply").string(), labelled);
+}
+
 RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   const auto t_total = Clock::now();
   RunResult out;
@@ -144,35 +166,22 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   m["seed"] = sc.seed;
 
   // --- Cell and scan (the simulator).
-  progress(opt, "cell", 0.0);
-  const CellSetup setup = setup_cell(sc);
+  progress(opt, "cell and scan", 0.0);
   const fs::path cell_dir = write ? dir / "cell" : fs::temp_directory_path() /
                                                        ("flashtwin_run_" + std::to_string(::getpid()));
-  const sim::CellFiles files = sim::write_cell(sc.robot, setup.spec, setup.casting, cell_dir.string());
+  const auto t_scan = Clock::now();
+  const ScenarioScan ss = scan_scenario(sc, cell_dir.string(), opt.threads);
+  const double scan_s = seconds_since(t_scan);
+  const CellSetup& setup = ss.setup;
+  const sim::CellScan& scan = ss.scan;
   m["casting.family"] = sim::to_string(sc.casting.family);
   m["casting.flashes"] = setup.casting.fins.size();
   m["casting.flash_volume_mm3"] = setup.casting.flash_volume() * 1e9;
 
-  progress(opt, "scan", 0.05);
-  const auto t_scan = Clock::now();
-  sim::ScanParams scan_params = sc.scan;
-  scan_params.threads = std::max(1, opt.threads);
-  const Pose X_WM_true = sim::perturb_pose(setup.spec.X_WM, sc.calibration_translation,
-                                           sc.calibration_rotation, sc.seed);
-  const sim::CellScan scan =
-      sim::scan_cell(files.mjcf, setup.casting, scan_params, setup.spec.X_WM, X_WM_true);
-  const double scan_s = seconds_since(t_scan);
   const PointCloud& cloud_M = scan.result.cloud_M;
   m["scan.points"] = cloud_M.size();
   m["scan.rays_per_s"] = scan.result.rays_per_s();
-  if (write && opt.write_scan) {
-    PointCloud pts;
-    pts.points = cloud_M.points;
-    save_ply((dir / "scan.ply").string(), pts);
-    PointCloud labelled = pts;
-    labelled.labels = scan.result.truth;
-    save_ply((cell_dir / "truth" / "scan_labels.ply").string(), labelled);
-  }
+  if (write && opt.write_scan) save_scan(ss, dir.string(), false);
 
   // --- Perception: pose, then flashes. Inputs: the scan in {M}, the CAD model, X_WM as
   // calibrated (nominal), never the truth.
@@ -187,7 +196,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   const Pose X_CM_est = reg.T_target_source;
   // Truth: where {M} really is relative to {C} (the calibrated X_WM is what perception used;
   // the pose error counts what registration got wrong about the casting in the cell).
-  const Pose X_CM_true = setup.spec.X_WC.inverse() * X_WM_true;
+  const Pose X_CM_true = setup.spec.X_WC.inverse() * scan.X_WM_true;
   const Pose X_WC_est = setup.spec.X_WM * X_CM_est.inverse();
   m["registration.confident"] = reg.confident;
   m["registration.rotation_error_deg"] =

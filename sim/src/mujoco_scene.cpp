@@ -58,20 +58,6 @@ std::vector<std::pair<double, double>> round_profile(double r, double h, int rin
   return p;
 }
 
-TriangleMesh box_mesh(const Vec3& h) {
-  TriangleMesh mesh;
-  for (int i = 0; i < 8; ++i)
-    mesh.vertices.emplace_back((i & 1) ? h.x() : -h.x(), (i & 2) ? h.y() : -h.y(),
-                               (i & 4) ? h.z() : -h.z());
-  // Vertex i has bits (x, y, z); each face as two counter-clockwise triangles seen from outside.
-  const int faces[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4},
-                           {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
-  for (const auto& f : faces) {
-    mesh.triangles.emplace_back(f[0], f[1], f[2]);
-    mesh.triangles.emplace_back(f[0], f[2], f[3]);
-  }
-  return mesh;
-}
 
 std::string geom_label(const mjModel* m, int g) {
   const char* name = mj_id2name(m, mjOBJ_GEOM, g);
@@ -133,7 +119,7 @@ TriangleMesh tessellate_geom(const mjModel* m, const mjData* d, int g, int segme
                     segments);
       break;
     case mjGEOM_BOX:
-      local = box_mesh(Vec3(size[0], size[1], size[2]));
+      local = box_mesh(-Vec3(size[0], size[1], size[2]), Vec3(size[0], size[1], size[2]));
       break;
     case mjGEOM_MESH: {
       const int k = m->geom_dataid[g];

@@ -14,21 +14,12 @@ using namespace flashtwin::perception;
 
 namespace {
 
-TriangleMesh box(const Vec3& lo, const Vec3& hi) {
-  TriangleMesh m;
-  for (int i = 0; i < 8; ++i)
-    m.vertices.emplace_back(i & 1 ? hi.x() : lo.x(), i & 2 ? hi.y() : lo.y(), i & 4 ? hi.z() : lo.z());
-  const int f[12][3] = {{0, 2, 1}, {1, 2, 3}, {4, 5, 6}, {5, 7, 6}, {0, 1, 4}, {1, 5, 4},
-                        {2, 6, 3}, {3, 6, 7}, {0, 4, 2}, {2, 4, 6}, {1, 3, 5}, {3, 7, 5}};
-  for (auto& t : f) m.triangles.emplace_back(t[0], t[1], t[2]);
-  return m;
-}
 
 struct Part {
   std::vector<Eigen::AlignedBox3d> body, fins;
   TriangleMesh cad() const {
     TriangleMesh m;
-    for (const auto& b : body) m.append(box(b.min(), b.max()));
+    for (const auto& b : body) m.append(box_mesh(b.min(), b.max()));
     return m;
   }
 };

@@ -67,28 +67,6 @@ JointTrajectory quintic(const DefaultCell& cell, const Vector6& qa, const Vector
   return tr;
 }
 
-// Closed, outward-oriented box [lo, hi] in a frame F, mapped into {C} by X_CF.
-TriangleMesh box_mesh(const Vec3& lo, const Vec3& hi, const Pose& X_CF) {
-  TriangleMesh m;
-  for (int k = 0; k < 8; ++k)
-    m.vertices.emplace_back(k & 1 ? hi.x() : lo.x(), k & 2 ? hi.y() : lo.y(),
-                            k & 4 ? hi.z() : lo.z());
-  const int quads[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4},
-                           {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
-  const Vec3 centre = 0.5 * (lo + hi);
-  for (const auto& q : quads) {
-    Eigen::Vector3i t0(q[0], q[1], q[2]), t1(q[0], q[2], q[3]);
-    const Vec3 nrm =
-        (m.vertices[q[1]] - m.vertices[q[0]]).cross(m.vertices[q[2]] - m.vertices[q[0]]);
-    if (nrm.dot(m.vertices[q[0]] - centre) < 0) {
-      std::swap(t0[1], t0[2]);
-      std::swap(t1[1], t1[2]);
-    }
-    m.triangles.push_back(t0);
-    m.triangles.push_back(t1);
-  }
-  return m.transformed(X_CF);
-}
 
 Vec3 mean_of(const std::vector<Vec3>& v, const std::vector<std::size_t>& rows) {
   Vec3 s = Vec3::Zero();
@@ -126,9 +104,9 @@ FinCase fin_case(const DefaultCell& cell) {
   fc.X_CF.linear() << x, a.cross(x), a;
   fc.X_CF.translation() = X_CT.translation();
   const double w = 0.5 * fc.fin_thickness;
-  const TriangleMesh body = box_mesh(Vec3(-15, -15, -13) * mm, Vec3(15, 15, -3) * mm, fc.X_CF);
+  const TriangleMesh body = box_mesh(Vec3(-15, -15, -13) * mm, Vec3(15, 15, -3) * mm).transformed(fc.X_CF);
   const TriangleMesh fin =
-      box_mesh(Vec3(-w, -15 * mm, -3 * mm), Vec3(w, 15 * mm, fc.fin_top), fc.X_CF);
+      box_mesh(Vec3(-w, -15 * mm, -3 * mm), Vec3(w, 15 * mm, fc.fin_top)).transformed(fc.X_CF);
   fc.grid = std::make_unique<MaterialGrid>(body, std::vector<TriangleMesh>{fin});
   return fc;
 }
@@ -368,9 +346,9 @@ TEST(Executor, AdmittanceHoldsTheTargetNormalForce) {
   // face 0.1 mm inside the cutter radius; the body beyond it, out of the tool's reach.
   const double face = tool.radius - 0.1 * mm;
   const TriangleMesh wall =
-      box_mesh(Vec3(face, -20 * mm, 8 * mm), Vec3(20 * mm, 60 * mm, 11 * mm), X_CF);
+      box_mesh(Vec3(face, -20 * mm, 8 * mm), Vec3(20 * mm, 60 * mm, 11 * mm)).transformed(X_CF);
   const TriangleMesh body =
-      box_mesh(Vec3(20 * mm, -20 * mm, 0), Vec3(30 * mm, 60 * mm, 20 * mm), X_CF);
+      box_mesh(Vec3(20 * mm, -20 * mm, 0), Vec3(30 * mm, 60 * mm, 20 * mm)).transformed(X_CF);
   const MaterialGrid grid0(body, {wall});
 
   ExecParams p;

@@ -18,27 +18,6 @@ namespace {
 
 constexpr double mm = 1e-3;
 
-// Closed, outward-oriented box [lo, hi] (8 shared vertices, 12 triangles).
-TriangleMesh box_mesh(const Vec3& lo, const Vec3& hi) {
-  TriangleMesh m;
-  for (int k = 0; k < 8; ++k)
-    m.vertices.emplace_back(k & 1 ? hi.x() : lo.x(), k & 2 ? hi.y() : lo.y(),
-                            k & 4 ? hi.z() : lo.z());
-  const int quads[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4},
-                           {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
-  const Vec3 centre = 0.5 * (lo + hi);
-  for (const auto& q : quads) {
-    Eigen::Vector3i t0(q[0], q[1], q[2]), t1(q[0], q[2], q[3]);
-    const Vec3 n = (m.vertices[q[1]] - m.vertices[q[0]]).cross(m.vertices[q[2]] - m.vertices[q[0]]);
-    if (n.dot(m.vertices[q[0]] - centre) < 0) {
-      std::swap(t0[1], t0[2]);
-      std::swap(t1[1], t1[2]);
-    }
-    m.triangles.push_back(t0);
-    m.triangles.push_back(t1);
-  }
-  return m;
-}
 
 // The test cell: a body box x ∈ [−30, 0], y ∈ [−60, 60], z ∈ [0, 20] mm with a parting-line-like
 // fin on its x = 0 wall: x ∈ [0, 5], y ∈ [−20, 20], z ∈ [9.5, 10.5] mm (200 mm^3).

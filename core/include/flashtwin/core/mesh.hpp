@@ -29,6 +29,9 @@ struct TriangleMesh {
   TriangleMesh transformed(const Pose& X) const;
 };
 
+/// Closed, outward-oriented axis-aligned box [lo, hi] (8 vertices, 12 triangles).
+TriangleMesh box_mesh(const Vec3& lo, const Vec3& hi);
+
 /// Topology report of a mesh.
 struct MeshCheck {
   std::size_t boundary_edges = 0;     ///< edges used by one triangle (holes)

@@ -11,6 +11,8 @@
 #include "flashtwin/perception/flash_detection.hpp"
 #include "flashtwin/perception/registration.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
+#include "flashtwin/sim/cell.hpp"
+#include "flashtwin/sim/scan_cell.hpp"
 
 namespace flashtwin::pipeline {
 
@@ -32,6 +34,22 @@ struct RunResult {
   perception::DetectionResult detection;
   perception::RegistrationResult registration;
 };
+
+/// A scenario's cell written to disk and scanned.
+struct ScenarioScan {
+  CellSetup setup;
+  sim::CellFiles files;
+  sim::CellScan scan;  ///< X_WM_nominal is the calibrated mount, X_WM_true the perturbed one
+};
+
+/// Builds the scenario's cell in `cell_dir` and scans it with `threads` scanner threads (the
+/// true scanner mount carries the scenario's calibration error).
+ScenarioScan scan_scenario(const Scenario& scenario, const std::string& cell_dir, int threads);
+
+/// Writes the scan as a sensor delivers it: `dir`/scan.ply (and scan.pcd when `pcd`), points
+/// only (the simulator's exact normals are ground truth); the truth labels go apart, to
+/// cell_dir/truth/scan_labels.ply.
+void save_scan(const ScenarioScan& s, const std::string& dir, bool pcd);
 
 /// Runs the scenario end to end and writes metrics.json (and the other outputs) into
 /// options.out_dir. @throws InputError for bad scenario contents (missing meshes, ...).

@@ -1,0 +1,65 @@
+// Scoring against ground truth: label precision/recall, the §4.5 path metric, expect: bounds.
+#include <gtest/gtest.h>
+
+#include "flashtwin/pipeline/run.hpp"
+#include "flashtwin/pipeline/scoring.hpp"
+
+using namespace flashtwin;
+using namespace flashtwin::pipeline;
+
+TEST(Scoring, SegmentationCountsOnlyPointsWithATrueClass) {
+  // truth: body, flash, background, outlier, mixed, flash; detected: flash on 0, 1, 3, 4.
+  const std::vector<std::uint8_t> truth{0, 1, 2, 3, 4, 1};
+  const std::vector<std::uint8_t> det{1, 1, 0, 1, 1, 0};
+  const auto s = score_segmentation(det, truth);
+  EXPECT_EQ(s.scored, 4u);
+  EXPECT_EQ(s.true_positive, 1u);
+  EXPECT_EQ(s.false_positive, 1u);
+  EXPECT_EQ(s.false_negative, 1u);
+  EXPECT_DOUBLE_EQ(s.precision, 0.5);
+  EXPECT_DOUBLE_EQ(s.recall, 0.5);
+}
+
+TEST(Scoring, PathOffsetAndHalfCoverage) {
+  // True root: 100 mm along x. Path: its first half, 0.2 mm above it.
+  const std::vector<Curve> truth{{{Vec3(0, 0, 0), Vec3(0.1, 0, 0)}, false}};
+  const std::vector<Curve> path{{{Vec3(0, 0, 2e-4), Vec3(0.02, 0, 2e-4), Vec3(0.05, 0, 2e-4)}, false}};
+  const auto s = score_path(path, truth, 1e-4, 5e-4);
+  EXPECT_NEAR(s.true_length, 0.1, 1e-12);
+  EXPECT_NEAR(s.path_length, 0.05, 1e-12);
+  EXPECT_NEAR(s.spurious_max, 2e-4, 1e-12);
+  // Evaluation points at x ≤ 50.3 mm lie within 0.5 mm (hypot(0.3, 0.2) < 0.5 mm): ~50.3 %.
+  EXPECT_NEAR(s.coverage, 0.503, 0.005);
+  EXPECT_NEAR(s.max, std::hypot(0.05, 2e-4), 1e-9);
+  EXPECT_GT(s.rmse, s.mean);
+  // A closed square scored against itself: zero error, full coverage.
+  const std::vector<Curve> sq{{{Vec3(0, 0, 0), Vec3(0.01, 0, 0), Vec3(0.01, 0.01, 0), Vec3(0, 0.01, 0)}, true}};
+  const auto z = score_path(sq, sq);
+  EXPECT_NEAR(z.true_length, 0.04, 1e-12);
+  EXPECT_LT(z.max, 1e-12);
+  EXPECT_DOUBLE_EQ(z.coverage, 1.0);
+}
+
+TEST(Scoring, CurveDistanceFindsFarSegments) {
+  // A query far from every grid cell of the segment still gets the exact distance.
+  const CurveDistance d({{{Vec3(0, 0, 0), Vec3(0.001, 0, 0)}, false}});
+  EXPECT_NEAR(d(Vec3(0.0005, 0.3, 0)), 0.3, 1e-12);
+  EXPECT_NEAR(d(Vec3(0.0005, 0.0004, 0)), 0.0004, 1e-12);
+}
+
+TEST(Scoring, ExpectationsReportEveryViolation) {
+  Scenario sc;
+  sc.expect = {{"path.rmse_mm", 0, 0.1, false, false},
+               {"registration.confident", -1e300, 1e300, true, true},
+               {"path.coverage", 0.99, 1e300, false, false},
+               {"missing.key", 0, 1, false, false}};
+  nlohmann::ordered_json m;
+  m["path.rmse_mm"] = 0.05;
+  m["registration.confident"] = false;
+  m["path.coverage"] = 0.9;
+  const auto bad = check_expectations(sc, m);
+  ASSERT_EQ(bad.size(), 3u);
+  EXPECT_NE(bad[0].find("registration.confident"), std::string::npos);
+  EXPECT_NE(bad[1].find("path.coverage"), std::string::npos);
+  EXPECT_NE(bad[2].find("missing.key"), std::string::npos);
+}
