@@ -8,6 +8,8 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <functional>
+#include <tuple>
 #include <iostream>
 #include <nlohmann/json.hpp>
 #include <sstream>
@@ -20,6 +22,9 @@
 #include "flashtwin/perception/flash_detection.hpp"
 #include "flashtwin/pipeline/run.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
+#include "flashtwin/pipeline/sweep.hpp"
+#include "flashtwin/planner/grind_planner.hpp"
+#include "flashtwin/planner/program_export.hpp"
 #include "flashtwin/planner/ik.hpp"
 #include "flashtwin/planner/kinematics.hpp"
 #include "flashtwin/planner/workspace.hpp"
@@ -405,7 +410,8 @@ int cmd_register(const Common& c, const std::string& source_path, const std::str
 
 // A pose file: JSON holding 16 row-major numbers, either as the whole document, or under
 // "T_target_source" (what `register --json` prints) or "X_CM"; 4x4 nested arrays work too.
-ft::Pose read_pose_file(const std::string& path) {
+ft::Pose read_pose_file(const std::string& path,
+                        const std::vector<std::string>& keys = {"T_target_source", "X_CM"}) {
   json j;
   try {
     j = json::parse(ft::read_text_file(path));
@@ -413,9 +419,16 @@ ft::Pose read_pose_file(const std::string& path) {
     throw ft::InputError(path + ": expected JSON with a 4x4 pose, got a parse error (" + e.what() + ")");
   }
   if (j.is_object()) {
-    if (j.contains("T_target_source")) j = j["T_target_source"];
-    else if (j.contains("X_CM")) j = j["X_CM"];
-    else throw ft::InputError(path + ": expected key 'T_target_source' or 'X_CM' with 16 numbers");
+    std::string names;
+    bool found = false;
+    for (const auto& k : keys) {
+      names += (names.empty() ? "'" : " or '") + k + "'";
+      if (!found && j.contains(k)) {
+        j = json(j[k]);
+        found = true;
+      }
+    }
+    if (!found) throw ft::InputError(path + ": expected key " + names + " with 16 numbers");
   }
   std::vector<double> v;
   const auto collect = [&](const json& a, auto&& self) -> void {
@@ -479,19 +492,11 @@ int cmd_detect(const Common& c, const std::string& scan_path, const std::string&
   return kExitOk;
 }
 
-int cmd_run(const Common& c, const std::string& scenario_path, const std::string& out,
-            long long seed_override) {
-  ft::pipeline::Scenario sc = ft::pipeline::load_scenario(scenario_path);
-  if (seed_override >= 0) {
-    sc.seed = static_cast<std::uint64_t>(seed_override);
-    sc.scan.seed = sc.seed;
-    sc.casting.seed = sc.seed;
-  }
-  ft::pipeline::RunOptions opt;
-  opt.out_dir = out;
+// Progress bar on a terminal, stage lines otherwise, nothing with --json.
+std::function<void(const std::string&, double)> progress_printer(const Common& c) {
   const bool tty = !c.json && isatty(fileno(stderr));
-  opt.progress = [&](const std::string& stage, double f) {
-    if (c.json) return;
+  return [tty, json_out = c.json](const std::string& stage, double f) {
+    if (json_out) return;
     if (tty) {
       const int w = 30, k = static_cast<int>(f * w);
       std::fprintf(stderr, "\r[%s%s] %3.0f%% %-14s", std::string(k, '#').c_str(),
@@ -501,21 +506,217 @@ int cmd_run(const Common& c, const std::string& scenario_path, const std::string
       spdlog::info("stage: {}", stage);
     }
   };
+}
+
+// The one-screen summary of a run: the metrics a reviewer looks at first.
+void print_run_summary(const ft::pipeline::Scenario& sc, const ft::pipeline::RunResult& r,
+                       const std::string& out, bool report) {
+  std::printf("scenario '%s' (seed %llu): %s\n", sc.name.c_str(),
+              static_cast<unsigned long long>(sc.seed), r.verdict.c_str());
+  static const char* keys[] = {
+      "scan.points", "registration.confident", "registration.rotation_error_deg",
+      "registration.translation_error_mm", "segmentation.precision", "segmentation.recall",
+      "path.count", "path.true_count", "path.rmse_mm", "path.coverage",
+      "trajectory.paths_planned", "trajectory.paths_failed",
+      "trajectory.max_joint_velocity_ratio", "trajectory.max_joint_accel_ratio",
+      "execution.tracking_rmse_mm", "execution.joint_limit_violations",
+      "removal.flash_removed_fraction", "removal.residual_flash_max_mm", "removal.gouge_max_mm",
+      "force.mean_n", "force.rmse_n", "force.max_n", "rescan.flash_points",
+      "sim.realtime_factor", "timing.scan_s", "timing.perception_s", "timing.planning_s",
+      "timing.execution_s", "timing.total_s"};
+  for (const char* k : keys) {
+    if (!r.metrics.contains(k)) continue;
+    const auto& v = r.metrics[k];
+    if (v.is_number_float()) std::printf("  %-36s %.4g\n", k, v.get<double>());
+    else std::printf("  %-36s %s\n", k, v.dump().c_str());
+  }
+  std::printf("all metrics: %s/metrics.json%s%s\n", out.c_str(),
+              report ? "\nreport:      " : "", report ? (out + "/report.html").c_str() : "");
+}
+
+int cmd_run(const Common& c, const std::string& scenario_path, const std::string& out,
+            long long seed_override, const std::vector<std::string>& sets, bool video,
+            const std::string& video_path, bool no_report, bool check) {
+  ft::pipeline::Scenario sc = ft::pipeline::load_scenario(scenario_path, sets);
+  if (seed_override >= 0) ft::pipeline::set_seed(sc, static_cast<std::uint64_t>(seed_override));
+  ft::pipeline::RunOptions opt;
+  opt.out_dir = out;
+  opt.report = !no_report;
+  if (video || !video_path.empty())
+    opt.video.path = video_path.empty() ? (std::filesystem::path(out) / "run.mp4").string()
+                                        : video_path;
+  opt.progress = progress_printer(c);
   const auto r = ft::pipeline::run_scenario(sc, opt);
   const auto violations = ft::pipeline::check_expectations(sc, r.metrics);
   if (c.json) {
     std::cout << r.metrics.dump() << "\n";
   } else {
-    std::printf("scenario '%s' (seed %llu): %s\n", sc.name.c_str(),
-                static_cast<unsigned long long>(sc.seed), r.verdict.c_str());
-    for (const auto& [k, v] : r.metrics.items())
-      if (v.is_number_float()) std::printf("  %-40s %.4g\n", k.c_str(), v.get<double>());
-      else if (!v.is_string()) std::printf("  %-40s %s\n", k.c_str(), v.dump().c_str());
-    std::printf("outputs: %s/metrics.json\n", out.c_str());
+    print_run_summary(sc, r, out, opt.report);
+    if (!opt.video.path.empty()) std::printf("video:       %s\n", opt.video.path.c_str());
   }
   for (const auto& v : violations) std::fprintf(stderr, "flashtwin: expectation failed: %s\n", v.c_str());
+  if (check) {
+    if (sc.expect.empty()) {
+      std::fprintf(stderr, "flashtwin: --check: %s has no expect: block\n", scenario_path.c_str());
+      return kExitFailed;
+    }
+    if (violations.empty() && !c.json)
+      std::printf("check: all %zu expect: bounds hold\n", sc.expect.size());
+    return violations.empty() ? kExitOk : kExitFailed;
+  }
   if (!violations.empty()) return kExitFailed;
   return r.exit_code;
+}
+
+int cmd_sweep(const Common& c, const std::string& scenario_path, const std::string& out,
+              const std::string& seeds, const std::vector<std::string>& sets,
+              const std::string& shard, int threads) {
+  const ft::pipeline::Scenario sc = ft::pipeline::load_scenario(scenario_path, sets);
+  ft::pipeline::SweepOptions o;
+  o.seeds = ft::pipeline::parse_seeds(seeds);
+  std::tie(o.shard, o.shards) = ft::pipeline::parse_shard(shard);
+  o.threads = threads;
+  o.out_dir = out;
+  const bool tty = !c.json && isatty(fileno(stderr));
+  o.progress = [&](std::size_t done, std::size_t total, std::uint64_t seed, int code) {
+    if (c.json) return;
+    if (tty) {
+      std::fprintf(stderr, "\r%zu/%zu runs (seed %llu: exit %d)   ", done, total,
+                   static_cast<unsigned long long>(seed), code);
+      if (done == total) std::fprintf(stderr, "\n");
+    } else {
+      spdlog::info("run {}/{}: seed {} exit {}", done, total, seed, code);
+    }
+  };
+  const auto r = ft::pipeline::run_sweep(sc, o);
+  if (c.json) {
+    std::cout << r.summary.dump() << "\n";
+  } else {
+    std::printf("%s", ft::read_text_file(r.table_path).c_str());
+    std::printf("\nruns: %s\nsummary: %s, %s\n", r.jsonl_path.c_str(), r.summary_path.c_str(),
+                r.table_path.c_str());
+  }
+  return r.failures ? kExitFailed : kExitOk;
+}
+
+// Paths as `flashtwin detect` writes them (paths.json): points, normals, fin_normal, closed.
+std::vector<ft::planner::GrindPath> read_paths_file(const std::string& path) {
+  json j;
+  try {
+    j = json::parse(ft::read_text_file(path));
+  } catch (const json::parse_error& e) {
+    throw ft::InputError(path + ": expected the paths JSON of `flashtwin detect`, got a parse error (" +
+                         e.what() + ")");
+  }
+  if (!j.is_object() || !j.contains("paths") || !j["paths"].is_array())
+    throw ft::InputError(path + ": expected an object with a 'paths' array");
+  const auto vec = [&](const json& a, const std::string& where) {
+    if (!a.is_array() || a.size() != 3 || !a[0].is_number() || !a[1].is_number() || !a[2].is_number())
+      throw ft::InputError(path + ": " + where + ": expected [x, y, z]");
+    ft::Vec3 v(a[0].get<double>(), a[1].get<double>(), a[2].get<double>());
+    if (!v.allFinite()) throw ft::InputError(path + ": " + where + ": expected finite numbers");
+    return v;
+  };
+  std::vector<ft::planner::GrindPath> out;
+  for (std::size_t k = 0; k < j["paths"].size(); ++k) {
+    const auto& p = j["paths"][k];
+    const std::string where = "paths[" + std::to_string(k) + "]";
+    if (!p.is_object() || !p.contains("points") || !p["points"].is_array())
+      throw ft::InputError(path + ": " + where + ": expected 'points'");
+    ft::planner::GrindPath g;
+    for (std::size_t i = 0; i < p["points"].size(); ++i)
+      g.points_C.push_back(vec(p["points"][i], where + ".points[" + std::to_string(i) + "]"));
+    if (p.contains("normals")) {
+      if (!p["normals"].is_array() || p["normals"].size() != g.points_C.size())
+        throw ft::InputError(path + ": " + where + ".normals: expected one per point");
+      for (std::size_t i = 0; i < p["normals"].size(); ++i)
+        g.normals_C.push_back(vec(p["normals"][i], where + ".normals[" + std::to_string(i) + "]"));
+    }
+    if (p.contains("fin_normal")) g.fin_normal_C = vec(p["fin_normal"], where + ".fin_normal");
+    g.closed = p.value("closed", false);
+    out.push_back(std::move(g));
+  }
+  return out;
+}
+
+int cmd_plan(const Common& c, const std::string& paths_path, const std::string& cad_path,
+             const std::string& pose_path, const std::string& out, const std::string& export_lang,
+             double feed, double lead_deg, double tilt_deg) {
+  const ft::RobotModel robot = ft::load_robot(c.robot);
+  auto paths = read_paths_file(paths_path);
+  const ft::TriangleMesh cad = ft::load_mesh(cad_path);
+  const ft::Pose X_BC = read_pose_file(pose_path, {"X_BC", "T_base_casting"});
+  const ft::MeshBvh bvh(cad);
+  // The CAD gives the wall normals (where the file has none) and checks units and frame: the
+  // path must lie on the CAD surface.
+  for (std::size_t k = 0; k < paths.size(); ++k) {
+    auto& g = paths[k];
+    const bool fill = g.normals_C.empty();
+    double worst = 0;
+    for (const auto& p : g.points_C) {
+      const auto cp = bvh.closest(p);
+      worst = std::max(worst, cp.distance);
+      if (fill) g.normals_C.push_back(cad.triangle_normal(static_cast<std::size_t>(cp.triangle)));
+    }
+    if (worst > 0.005)
+      throw ft::InputError(paths_path + ": paths[" + std::to_string(k) + "] lies up to " +
+                           std::to_string(worst * 1000) + " mm off the CAD surface of " + cad_path +
+                           " (expected on it, within 5 mm: same frame {C}, metres)");
+  }
+  ft::planner::GrindParams gp;
+  gp.feed = feed;
+  gp.lead = lead_deg * M_PI / 180;
+  gp.tilt = tilt_deg * M_PI / 180;
+  json summary = json::array();
+  int failed = 0;
+  std::string first_failure;
+  for (std::size_t k = 0; k < paths.size(); ++k) {
+    ft::planner::GrindResult g;
+    try {
+      g = ft::planner::plan_grind(robot, X_BC, paths[k], gp);
+    } catch (const ft::ArgumentError& e) {
+      throw ft::InputError(paths_path + ": paths[" + std::to_string(k) + "]: " + e.what());
+    }
+    const std::string dir = (std::filesystem::path(out) / ("path_" + std::to_string(k))).string();
+    ft::planner::write_grind_outputs(g, dir);
+    json pj = {{"path", k}, {"status", ft::planner::to_string(g.status)}, {"message", g.message}};
+    if (g.ok()) {
+      pj["time_s"] = g.total_time;
+      pj["max_joint_velocity_ratio"] = g.max_joint_velocity_ratio;
+      pj["max_joint_accel_ratio"] = g.max_joint_accel_ratio;
+      pj["min_manipulability"] = g.min_manipulability;
+      if (!export_lang.empty()) {
+        ft::planner::ProgramParams pp;
+        pp.dialect = export_lang == "krl" ? ft::planner::ProgramDialect::kKrl
+                                          : ft::planner::ProgramDialect::kUrScript;
+        pp.name = "flashtwin_path_" + std::to_string(k);
+        const auto prog = ft::planner::export_program(robot, g.trajectory, pp);
+        const std::string file =
+            (std::filesystem::path(dir) / (pp.name + (export_lang == "krl" ? ".src" : ".script"))).string();
+        ft::planner::write_program(prog, file);
+        pj["program"] = file;
+      }
+    } else {
+      ++failed;
+      if (first_failure.empty()) first_failure = "path " + std::to_string(k) + ": " + g.message;
+    }
+    summary.push_back(pj);
+  }
+  ft::ensure_directory(out);
+  ft::write_text_file((std::filesystem::path(out) / "plans.json").string(), summary.dump(1) + "\n");
+  if (c.json) {
+    std::cout << summary.dump() << "\n";
+  } else {
+    for (const auto& pj : summary)
+      std::printf("path %zu: %s%s\n", pj["path"].get<std::size_t>(),
+                  pj["status"].get<std::string>().c_str(),
+                  pj.contains("time_s") ? (", " + std::to_string(pj["time_s"].get<double>()) + " s").c_str()
+                                        : (": " + pj["message"].get<std::string>()).c_str());
+    std::printf("%zu path(s), %d failed; outputs in %s/path_*/ and %s/plans.json\n", paths.size(),
+                failed, out.c_str(), out.c_str());
+  }
+  if (paths.empty()) std::printf("nothing to grind\n");
+  return failed ? kExitFailed : kExitOk;
 }
 
 }  // namespace
@@ -645,6 +846,59 @@ int main(int argc, char** argv) {
   run->add_option("-o,--output", out, "Output folder")->required();
   run->add_option("--seed", run_seed, "Override the scenario's seed (casting, placement, scan)");
   run->add_flag("--json", common.json, "Print metrics.json to stdout");
+  std::vector<std::string> sets;
+  bool run_video = false, no_report = false, run_check = false;
+  std::string video_path;
+  run->add_option("--set", sets, "Override a scenario key: dotted.key=value (YAML value); repeatable");
+  run->add_flag("--video", run_video, "Also write DIR/run.mp4 of the execution (slower)");
+  run->add_option("--video-path", video_path, "Write the video here instead (implies --video)");
+  run->add_flag("--no-report", no_report, "Skip report.html and its renders");
+  run->add_flag("--check", run_check,
+                "Regression mode: exit 0 when every bound of the scenario's expect: block holds "
+                "(an expected refusal, exit_code: 1, included), else 1");
+
+  auto* sweep = app.add_subcommand(
+      "sweep", "Run a scenario for many seeds in parallel threads (algorithm tuning): one JSON "
+               "line per run and a summary table (mean, min, max, failures per metric); exit 1 "
+               "when any run failed");
+  std::string seeds_text = "1-10", shard_text = "0/1";
+  int sweep_threads = 2;
+  sweep->add_option("scenario", scenario, "Scenario YAML")->required();
+  sweep->add_option("-o,--output", out, "Output folder (runs.jsonl, summary.json, summary.md)")
+      ->required();
+  sweep->add_option("--seeds", seeds_text, "Seeds: 1-100, 5, or 1-10,20,30-32")->capture_default_str();
+  sweep->add_option("--set", sets, "Override a scenario key: dotted.key=value; repeatable");
+  sweep->add_option("--shard", shard_text,
+                    "Run only seeds i with i % N == k (k/N; e.g. $SLURM_ARRAY_TASK_ID/16)")
+      ->capture_default_str();
+  sweep->add_option("--threads", sweep_threads, "Runs at once")->capture_default_str();
+  sweep->add_flag("--json", common.json, "Print summary.json to stdout");
+
+  auto* plan = app.add_subcommand(
+      "plan", "Plan grinding trajectories for detected paths (paths.json of `detect`) on a casting "
+              "at a known pose in the robot base: trajectory.csv, plots, optional robot program; "
+              "exit 1 when a path cannot be planned");
+  std::string plan_paths, export_lang;
+  double plan_feed = 0.01, plan_lead = 0, plan_tilt = 0;
+  plan->add_option("--path", plan_paths, "Paths JSON ({C}, metres) as `flashtwin detect` writes it")
+      ->required();
+  plan->add_option("--cad", cad_path, "CAD model of the casting (STL/OBJ/PLY, metres, frame {C})")
+      ->required();
+  plan->add_option("--pose", pose_path,
+                   "JSON pose X_BC of the casting in the robot base {B}: 16 row-major numbers "
+                   "(or under key X_BC)")
+      ->required();
+  plan->add_option("-o,--output", out, "Output folder (path_k/ per path, plans.json)")->required();
+  plan->add_option("--export", export_lang, "Robot program per path: krl (KUKA .src) or urscript")
+      ->check(CLI::IsMember({"krl", "urscript"}));
+  plan->add_option("--feed", plan_feed, "Cutting feed [m/s]")->capture_default_str()
+      ->check(CLI::Range(1e-4, 1.0));
+  plan->add_option("--lead", plan_lead, "Lead angle [deg]")->capture_default_str()
+      ->check(CLI::Range(-45.0, 45.0));
+  plan->add_option("--tilt", plan_tilt, "Tilt angle [deg]")->capture_default_str()
+      ->check(CLI::Range(-45.0, 45.0));
+  plan->add_flag("--json", common.json, "Print the per-path summary as JSON");
+  add_robot(plan);
 
   try {
     app.parse(argc, argv);
@@ -675,7 +929,14 @@ int main(int argc, char** argv) {
       return cmd_render(common, scenario, out, cameras, width, height, with_scan, with_truth);
     if (*scan) return cmd_scan(common, scenario, out);
     if (*det) return cmd_detect(common, scan_path, cad_path, pose_path, out);
-    if (*run) return cmd_run(common, scenario, out, run_seed);
+    if (*run)
+      return cmd_run(common, scenario, out, run_seed, sets, run_video, video_path, no_report,
+                     run_check);
+    if (*sweep)
+      return cmd_sweep(common, scenario, out, seeds_text, sets, shard_text, sweep_threads);
+    if (*plan)
+      return cmd_plan(common, plan_paths, cad_path, pose_path, out, export_lang, plan_feed,
+                      plan_lead, plan_tilt);
     if (*reg) return cmd_register(common, source_path, target_path, method, remove_plane, viewpoint);
   } catch (const ft::InputError& e) {
     std::fprintf(stderr, "flashtwin: error: %s\n", e.what());

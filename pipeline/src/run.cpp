@@ -2,11 +2,13 @@
 
 #include <spdlog/spdlog.h>
 
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
+#include <memory>
 #include <unistd.h>
 #include <sstream>
 
@@ -15,7 +17,13 @@
 #include "flashtwin/core/mesh_query.hpp"
 #include "flashtwin/pipeline/scoring.hpp"
 #include "flashtwin/planner/grind_planner.hpp"
+#include "flashtwin/planner/program_export.hpp"
+#include "flashtwin/pipeline/execution.hpp"
+#include "flashtwin/pipeline/report.hpp"
 #include "flashtwin/sim/cell.hpp"
+#include "flashtwin/sim/executor.hpp"
+#include "flashtwin/sim/mujoco_handles.hpp"
+#include "flashtwin/sim/process.hpp"
 #include "flashtwin/sim/scan_cell.hpp"
 
 namespace flashtwin::pipeline {
@@ -33,6 +41,12 @@ double seconds_since(Clock::time_point t0) {
 // JSON has no inf/NaN: such values become null.
 json number(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
 
+
+// Runs without an output folder (sweeps, several threads) each get their own temporary cell.
+std::size_t next_temp_id() {
+  static std::atomic<std::size_t> id{0};
+  return id++;
+}
 
 void progress(const RunOptions& o, const std::string& stage, double f) {
   if (o.progress) o.progress(stage, f);
@@ -168,7 +182,8 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   // --- Cell and scan (the simulator).
   progress(opt, "cell and scan", 0.0);
   const fs::path cell_dir = write ? dir / "cell" : fs::temp_directory_path() /
-                                                       ("flashtwin_run_" + std::to_string(::getpid()));
+                                                       ("flashtwin_run_" + std::to_string(::getpid()) + "_" +
+                                                        std::to_string(next_temp_id()));
   const auto t_scan = Clock::now();
   const ScenarioScan ss = scan_scenario(sc, cell_dir.string(), opt.threads);
   const double scan_s = seconds_since(t_scan);
@@ -263,6 +278,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
 
   // --- Planning: one grinding motion per path, on the casting where perception put it.
   double planning_s = 0;
+  std::vector<PlannedPath> planned_paths;
   if (!out.refused && !det.paths.empty()) {
     progress(opt, "planning", 0.5);
     const auto t_plan = Clock::now();
@@ -271,6 +287,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     int planned = 0, failed = 0;
     std::string first_failure;
     json plans = json::array();
+    planned_paths.clear();
     for (std::size_t k = 0; k < det.paths.size(); ++k) {
       const auto& p = det.paths[k];
       planner::GrindPath gp;
@@ -295,9 +312,19 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
         length += g.cut_length;
         pj["time_s"] = g.total_time;
         pj["cut_length_m"] = g.cut_length;
+        planned_paths.push_back({k, g});
         if (write) {
           const std::string pd = (dir / "plan" / ("path_" + std::to_string(k))).string();
           planner::write_grind_outputs(g, pd);
+          // The robot program a real KUKA controller would run (frames declared in it).
+          planner::ProgramParams pp;
+          pp.name = "flashtwin_path_" + std::to_string(k);
+          try {
+            planner::write_program(planner::export_program(sc.robot, g.trajectory, pp),
+                                   (fs::path(pd) / (pp.name + ".src")).string());
+          } catch (const ArgumentError& e) {
+            spdlog::warn("path {}: no KRL program: {}", k, e.what());
+          }
           if (planned == 1) write_text_file((dir / "trajectory.csv").string(), planner::trajectory_csv(g));
         }
       } else {
@@ -323,16 +350,69 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     }
   }
 
+  // --- Execution: every planned path runs in MuJoCo while the process model grinds the
+  // casting's material (the simulated world, fins included), then the part is scanned again.
+  double execution_s = 0;
+  ExecutionSummary& exec_summary = out.execution;
+  if (!out.refused && sc.execution.enabled && !planned_paths.empty()) {
+    progress(opt, "execution", 0.6);
+    const auto t_exec = Clock::now();
+    std::unique_ptr<VideoRecorder> video;
+    FrameHook hook;
+    if (!opt.video.path.empty()) {
+      double duration = 0;
+      for (const auto& p : planned_paths)
+        duration += p.second.total_time + sc.execution.exec.settle_time;
+      video = std::make_unique<VideoRecorder>(opt.video, duration);
+      hook = [&video](const mjModel* mm, mjData* d, double t, const sim::MaterialGrid& grid,
+                      std::size_t) { video->on_step(mm, d, t, grid); };
+    }
+    exec_summary = execute_plans(sc, ss, planned_paths, m, hook);
+    if (video) {
+      m["video.frames"] = video->finish();
+      m["video.speedup"] = video->speedup();
+    }
+    execution_s = seconds_since(t_exec);
+    if (exec_summary.failed && out.exit_code == 0) {
+      out.exit_code = 1;
+      out.verdict = exec_summary.failure;
+    }
+    if (sc.execution.rescan && !exec_summary.failed) {
+      progress(opt, "re-scan", 0.85);
+      rescan_after(sc, ss, X_CM_est, exec_summary, m);
+    }
+  }
+
   m["timing.scan_s"] = scan_s;
   m["timing.perception_s"] = perception_s;
   m["timing.planning_s"] = planning_s;
+  m["timing.execution_s"] = execution_s;
   m["timing.total_s"] = seconds_since(t_total);
   if (!out.refused && out.exit_code == 0) {
-    out.verdict = det.paths.empty() ? "nothing to grind" : det.message;
+    if (det.paths.empty()) {
+      out.verdict = "nothing to grind";
+    } else if (exec_summary.ran) {
+      std::ostringstream os;
+      os << std::fixed << std::setprecision(1) << "ground " << planned_paths.size()
+         << " path(s): " << exec_summary.residual.flash_removed_fraction * 100
+         << " % of the flash removed, highest residual " << std::setprecision(2)
+         << exec_summary.residual.residual_flash_max * 1e3 << " mm, deepest gouge "
+         << exec_summary.residual.gouge_max_depth * 1e3 << " mm";
+      out.verdict = os.str();
+    } else {
+      out.verdict = det.message;
+    }
   }
   m["verdict"] = out.verdict;
   m["exit_code"] = out.exit_code;
-  if (write) write_text_file((dir / "metrics.json").string(), m.dump(2) + "\n");
+  if (write) {
+    write_text_file((dir / "metrics.json").string(), m.dump(2) + "\n");
+    if (opt.report) {
+      progress(opt, "report", 0.95);
+      ReportInputs ri{sc, ss, out, planned_paths, exec_summary, X_CM_est};
+      write_report(dir.string(), ri);
+    }
+  }
   if (!write) {
     std::error_code ec;
     fs::remove_all(cell_dir, ec);

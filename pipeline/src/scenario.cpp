@@ -114,8 +114,80 @@ void read_scanner(const ConfigNode& s, Scenario& sc) {
 
 }  // namespace
 
-Scenario load_scenario(const std::string& path) {
-  const ConfigNode root = ConfigNode::load_file(path);
+Scenario load_scenario(const std::string& path) { return load_scenario(path, {}); }
+
+void set_seed(Scenario& sc, std::uint64_t seed) {
+  sc.seed = seed;
+  sc.scan.seed = seed;
+  sc.casting.seed = seed;
+}
+
+namespace {
+
+YAML::Node apply_overrides(const std::string& path, const std::vector<std::string>& overrides) {
+  YAML::Node doc;
+  try {
+    doc = YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    throw IoError(path + ": cannot read the scenario file");
+  } catch (const YAML::Exception& e) {
+    throw ConfigError(path + ": malformed YAML: " + e.what());
+  }
+  for (const auto& o : overrides) {
+    const auto eq = o.find('=');
+    if (eq == std::string::npos || eq == 0)
+      throw ConfigError("--set " + o + ": expected dotted.key=value");
+    const std::string key = o.substr(0, eq);
+    YAML::Node value;
+    try {
+      value = YAML::Load(o.substr(eq + 1));
+    } catch (const YAML::Exception& e) {
+      throw ConfigError("--set " + o + ": the value is not valid YAML: " + e.what());
+    }
+    std::vector<std::string> parts;
+    std::size_t start = 0;
+    while (true) {
+      const auto dot = key.find('.', start);
+      parts.push_back(key.substr(start, dot - start));
+      if (dot == std::string::npos) break;
+      start = dot + 1;
+    }
+    // Walk with fresh handles (YAML::Node assignment would rebind, not copy).
+    std::vector<YAML::Node> chain{doc};
+    for (std::size_t i = 0; i + 1 < parts.size(); ++i) {
+      YAML::Node cur = chain.back();
+      const std::string& p = parts[i];
+      if (p.empty()) throw ConfigError("--set " + o + ": empty key part");
+      if (cur.IsSequence()) {
+        const std::size_t idx = std::stoul(p);
+        if (idx >= cur.size()) throw ConfigError("--set " + o + ": index " + p + " out of range");
+        chain.push_back(cur[idx]);
+      } else if (cur.IsMap() || cur.IsNull()) {
+        if (!cur[p] || cur[p].IsNull()) cur[p] = YAML::Node(YAML::NodeType::Map);
+        chain.push_back(cur[p]);
+      } else {
+        throw ConfigError("--set " + o + ": '" + p + "' is below a scalar");
+      }
+    }
+    YAML::Node last = chain.back();
+    if (last.IsScalar()) throw ConfigError("--set " + o + ": the parent of the key is a scalar");
+    if (last.IsSequence()) {
+      const std::size_t idx = std::stoul(parts.back());
+      if (idx >= last.size()) throw ConfigError("--set " + o + ": index out of range");
+      last[idx] = value;
+    } else {
+      last[parts.back()] = value;
+    }
+  }
+  return doc;
+}
+
+}  // namespace
+
+Scenario load_scenario(const std::string& path, const std::vector<std::string>& overrides) {
+  const ConfigNode root =
+      overrides.empty() ? ConfigNode::load_file(path)
+                        : ConfigNode::load_string(YAML::Dump(apply_overrides(path, overrides)), path);
   Scenario sc;
   sc.file = path;
   sc.name = root.get_string("name");
@@ -236,6 +308,39 @@ Scenario load_scenario(const std::string& path) {
     g.manipulability_threshold =
         pl2.get_double("manipulability_threshold", 0, 1, g.manipulability_threshold);
     g.max_extra_tilt = pl2.get_double("max_extra_tilt", 0, 1.2, g.max_extra_tilt);
+  }
+
+  if (root.has("execution")) {
+    const ConfigNode ex = root.at("execution");
+    auto& e = sc.execution;
+    e.enabled = ex.get_bool("enabled", e.enabled);
+    e.rescan = ex.get_bool("rescan", e.rescan);
+    e.exec.settle_time = ex.get_double("settle_time", 0, 10, e.exec.settle_time);
+    e.exec.feedforward = ex.get_bool("feedforward", e.exec.feedforward);
+    e.exec.log_decimation =
+        static_cast<int>(ex.get_int("log_decimation", 1, 100000, e.exec.log_decimation));
+    if (ex.has("force_control")) {
+      const ConfigNode fc = ex.at("force_control");
+      auto& f = e.exec.force_control;
+      f.enabled = fc.get_bool("enabled", f.enabled);
+      f.target_force = fc.get_double("target_force", 0.01, 1000, f.target_force);
+      f.gain = fc.get_double("gain", 0, 1, f.gain);
+      f.max_correction = fc.get_double("max_correction", 0, 0.05, f.max_correction);
+      f.release_time = fc.get_double("release_time", 0, 10, f.release_time);
+    }
+  }
+  if (root.has("process")) {
+    const ConfigNode pr = root.at("process");
+    auto& mp = sc.execution.material;
+    mp.voxel_size = pr.get_double("voxel_size", 2e-5, 2e-3, mp.voxel_size);
+    mp.body_band = pr.get_double("body_band", 1e-4, 0.01, mp.body_band);
+    mp.body_margin = pr.get_double("body_margin", 0, 0.05, mp.body_margin);
+    auto& f = sc.execution.force;
+    f.specific_energy = pr.get_double("specific_energy", 1e8, 1e12, f.specific_energy);
+    f.force_ratio = pr.get_double("force_ratio", 0.1, 10, f.force_ratio);
+    f.spindle_rpm = pr.get_double("spindle_rpm", 100, 200000, f.spindle_rpm);
+    f.contact_stiffness = pr.get_double("contact_stiffness", 0, 1e9, f.contact_stiffness);
+    f.contact_damping = pr.get_double("contact_damping", 0, 1e6, f.contact_damping);
   }
 
   if (root.has("expect")) {

@@ -277,6 +277,25 @@ CellFiles write_cell(const RobotModel& robot, const CellSpec& spec, const Castin
   return f;
 }
 
+std::string write_cell_variant(const RobotModel& robot, const CellSpec& spec,
+                               const TriangleMesh& nominal, const TriangleMesh& flash_C,
+                               const std::string& dir, const std::string& name) {
+  namespace fs = std::filesystem;
+  CastingAssets assets;
+  assets.nominal_stl = "meshes/casting_nominal.stl";
+  if (!fs::exists(fs::path(dir) / assets.nominal_stl))
+    throw IoError(dir + ": expected a cell written by write_cell (meshes/casting_nominal.stl)");
+  if (!flash_C.triangles.empty()) {
+    assets.flash_stl = "meshes/" + name + "_flash.stl";
+    save_mesh((fs::path(dir) / assets.flash_stl).string(), flash_C);
+  }
+  nominal.bounds(assets.lo, assets.hi);
+  const std::string path = (fs::path(dir) / (name + ".xml")).string();
+  write_text_file(path, cell_mjcf(robot, spec, &assets));
+  check_mjcf(path);
+  return path;
+}
+
 void write_ground_truth(const Casting& casting, const Pose& X_WC, const std::string& dir) {
   namespace fs = std::filesystem;
   ensure_directory(dir);

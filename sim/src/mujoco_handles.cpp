@@ -1,14 +1,28 @@
 #include "flashtwin/sim/mujoco_handles.hpp"
 
 #include <cstring>
+#include <mutex>
 
 #include "flashtwin/core/errors.hpp"
 
 namespace flashtwin::sim {
 
+namespace {
+// MuJoCo 2.2's XML parser and compiler keep global state: one model load at a time (parallel
+// sweeps load models from several threads).
+std::mutex& load_mutex() {
+  static std::mutex m;
+  return m;
+}
+}  // namespace
+
 MjModelPtr load_mjcf_file(const std::string& path) {
   char err[1024] = "";
-  mjModel* m = mj_loadXML(path.c_str(), nullptr, err, sizeof err);
+  mjModel* m = nullptr;
+  {
+    const std::lock_guard<std::mutex> lock(load_mutex());
+    m = mj_loadXML(path.c_str(), nullptr, err, sizeof err);
+  }
   if (!m) throw InputError(path + ": MuJoCo cannot load the model: " + err);
   return MjModelPtr(m);
 }
@@ -22,7 +36,11 @@ MjModelPtr load_mjcf_string(const std::string& xml, const std::string& name) {
   const int id = mj_findFileVFS(vfs.get(), name.c_str());
   std::memcpy(vfs->filedata[id], xml.data(), xml.size());
   char err[1024] = "";
-  mjModel* m = mj_loadXML(name.c_str(), vfs.get(), err, sizeof err);
+  mjModel* m = nullptr;
+  {
+    const std::lock_guard<std::mutex> lock(load_mutex());
+    m = mj_loadXML(name.c_str(), vfs.get(), err, sizeof err);
+  }
   mj_deleteVFS(vfs.get());
   if (!m) throw InputError(name + ": MuJoCo cannot load the model: " + err);
   return MjModelPtr(m);

@@ -9,6 +9,8 @@
 #include <nlohmann/json.hpp>
 
 #include "flashtwin/perception/flash_detection.hpp"
+#include "flashtwin/pipeline/execution.hpp"
+#include "flashtwin/pipeline/video.hpp"
 #include "flashtwin/perception/registration.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
 #include "flashtwin/sim/cell.hpp"
@@ -20,6 +22,9 @@ struct RunOptions {
   std::string out_dir;        ///< everything is written here ("" = nothing written)
   bool write_scan = true;     ///< scan.ply (and the labelled scans)
   int threads = 2;            ///< scanner threads
+  bool report = true;         ///< report.html with renders and plots (needs out_dir)
+  /// MP4 of the execution when video.path is set (slows execution down: timings include it).
+  VideoOptions video;
   /// Stage progress callback (stage name, fraction of the run done); may be empty.
   std::function<void(const std::string&, double)> progress;
 };
@@ -33,6 +38,7 @@ struct RunResult {
   int exit_code = 0;           ///< 0 done, 1 refused/failed
   perception::DetectionResult detection;
   perception::RegistrationResult registration;
+  ExecutionSummary execution;  ///< logs of the closed loop (empty when it did not run)
 };
 
 /// A scenario's cell written to disk and scanned.

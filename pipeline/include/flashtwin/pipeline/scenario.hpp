@@ -10,6 +10,8 @@
 #include "flashtwin/planner/grind_planner.hpp"
 #include "flashtwin/sim/casting.hpp"
 #include "flashtwin/sim/cell.hpp"
+#include "flashtwin/sim/executor.hpp"
+#include "flashtwin/sim/process.hpp"
 #include "flashtwin/sim/scanner.hpp"
 
 namespace flashtwin::pipeline {
@@ -33,6 +35,15 @@ struct Expectation {
   bool flag = false;
 };
 
+/// The closed loop after planning (`execution:` and `process:` in the scenario file).
+struct ExecutionSettings {
+  bool enabled = true;            ///< run the planned paths in MuJoCo with the process model
+  bool rescan = true;             ///< scan the ground part again and detect what flash is left
+  sim::ExecParams exec;           ///< servo loop, admittance force control
+  sim::MaterialParams material;   ///< voxel grid of the flash and the body band
+  sim::ForceParams force;         ///< grinding force model
+};
+
 struct Scenario {
   std::string name;
   std::string file;         ///< the scenario file it was read from
@@ -47,6 +58,7 @@ struct Scenario {
   double calibration_rotation = 0;     ///< [rad]
   perception::DetectionParams detection;  ///< `perception.detection:` overrides
   planner::GrindParams grind;             ///< `planning:` overrides
+  ExecutionSettings execution;            ///< `execution:` and `process:` overrides
   std::vector<Expectation> expect;        ///< `expect:` bounds checked by regression runs
 };
 
@@ -54,6 +66,15 @@ struct Scenario {
 /// @throws IoError (missing file), ConfigError (naming file and key: malformed, out of range,
 /// unknown keys).
 Scenario load_scenario(const std::string& path);
+
+/// Same, with `overrides` applied to the YAML first: each "dotted.key=value" sets the key (maps
+/// are created as needed; list elements by index, "scanner.views.0.range=[0.2, 0.5]"), the value
+/// read as YAML ("0.5", "true", "[1, 2]"). Unknown keys are still reported by the loader.
+/// @throws ConfigError naming the override when it is malformed or walks into a scalar.
+Scenario load_scenario(const std::string& path, const std::vector<std::string>& overrides);
+
+/// Sets the master seed and everything drawn from it (casting shape, placement, scan noise).
+void set_seed(Scenario& scenario, std::uint64_t seed);
 
 /// The casting of a scenario and the cell with the casting placed on the table.
 struct CellSetup {

@@ -65,6 +65,14 @@ struct CellFiles {
 CellFiles write_cell(const RobotModel& robot, const CellSpec& spec, const Casting& casting,
                      const std::string& dir);
 
+/// Writes DIR/<name>.xml: the cell of write_cell (which must have written DIR before: the nominal
+/// mesh is reused) with the casting's flash replaced by `flash_C` (in {C}; empty: no flash),
+/// saved as DIR/meshes/<name>_flash.stl. Used for the "after grinding" renders. Returns the path.
+/// @throws IoError, InputError (MuJoCo rejects it).
+std::string write_cell_variant(const RobotModel& robot, const CellSpec& spec,
+                               const TriangleMesh& nominal, const TriangleMesh& flash_C,
+                               const std::string& dir, const std::string& name);
+
 /// Writes the ground truth of a casting placed at X_WC into `dir`: fins.stl ({C}) and
 /// flash_truth.json (fin kinds, volumes, root polylines in {C}, X_WC). Scoring only.
 void write_ground_truth(const Casting& casting, const Pose& X_WC, const std::string& dir);

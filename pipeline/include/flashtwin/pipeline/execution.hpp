@@ -1,0 +1,68 @@
+#pragma once
+// The closed loop after planning: the planned grinding motions run one after another on the
+// MuJoCo cell while the process model grinds the casting's material (one voxel grid for the
+// whole run), then the ground part is scanned again and perception looks for flash left over.
+// Writes the execution.*, force.*, removal.*, sim.* and rescan.* metrics.
+#include <cstddef>
+#include <functional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "flashtwin/core/transform.hpp"
+#include "flashtwin/planner/grind_planner.hpp"
+#include "flashtwin/sim/executor.hpp"
+#include "flashtwin/sim/process.hpp"
+
+namespace flashtwin::pipeline {
+
+struct Scenario;
+struct ScenarioScan;
+
+/// A planned path: its index among the detected paths and its plan (ok()).
+using PlannedPath = std::pair<std::size_t, planner::GrindResult>;
+
+/// What execution and the re-scan produced, for the metrics, the report and the video.
+struct ExecutionSummary {
+  bool ran = false;
+  bool failed = false;        ///< a path's simulation went unstable
+  std::string failure;        ///< one line, when failed
+  // Decimated logs of all paths back to back (time runs on over the paths).
+  std::vector<double> t;                  ///< [s] simulated time
+  std::vector<int> path;                  ///< detected-path index of the row
+  std::vector<double> normal_force;       ///< [N]
+  std::vector<double> tangential_force;   ///< [N]
+  std::vector<double> tracking_error;     ///< [m] |executed − planned TCP| (position)
+  std::vector<double> sensor_force;       ///< [N] |flange F/T force| (0 without the sensor)
+  double target_force = 0;                ///< [N]
+  sim::ResidualReport residual;
+  std::vector<Vec3> residual_points_C;    ///< remaining flash voxel centres ({C}) [m]
+  std::vector<double> residual_heights;   ///< their distance to the nominal surface [m]
+  std::vector<Vec3> gouge_points_C;       ///< removed body voxel centres [m]
+  TriangleMesh remaining_flash_C;         ///< surface of the remaining flash ({C})
+  // Re-scan.
+  bool rescanned = false;
+  std::vector<Vec3> rescan_flash_C;       ///< re-scan points perception calls flash ({C}, est.)
+};
+
+/// Optional per-frame hook for the video: called with the MuJoCo model/data of the running
+/// execution, the simulated time since the run's start and the material grid.
+using FrameHook = std::function<void(const mjModel* model, mjData* data, double t,
+                                     const sim::MaterialGrid& grid, std::size_t path)>;
+
+/// Runs the planned paths (in order, each from rest at its first sample: moves between paths
+/// are not simulated), fills the metrics and returns the logs.
+/// @throws the executor's ArgumentError/InputError (bad parameters, model names).
+ExecutionSummary execute_plans(const Scenario& scenario, const ScenarioScan& scan,
+                               const std::vector<PlannedPath>& plans, nlohmann::ordered_json& m,
+                               const FrameHook& frame_hook = {});
+
+/// Scans the ground part (nominal body + what is left of the flash) with the scenario's
+/// scanner and runs flash detection on it with the pose perception estimated before; fills
+/// rescan.* metrics and summary.rescan_flash_C.
+void rescan_after(const Scenario& scenario, const ScenarioScan& scan, const Pose& X_CM_est,
+                  ExecutionSummary& summary, nlohmann::ordered_json& m);
+
+}  // namespace flashtwin::pipeline

@@ -1,0 +1,59 @@
+#pragma once
+// The run's video: OSMesa frames of the cell while the arm grinds, piped into ffmpeg (H.264
+// MP4). The flash is drawn from the process model's voxel grid, so it visibly disappears where
+// the burr has passed: the cell's static flash mesh is hidden and a fixed sample of the flash
+// voxels is drawn as small spheres for as long as their voxel still holds flash.
+#include <cstdio>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "flashtwin/sim/executor.hpp"
+#include "flashtwin/sim/process.hpp"
+
+namespace flashtwin::sim {
+class OffscreenRenderer;
+}
+
+namespace flashtwin::pipeline {
+
+struct VideoOptions {
+  std::string path;                       ///< output .mp4
+  int width = 800, height = 600;          ///< [px], even numbers (H.264 4:2:0)
+  int fps = 25;
+  double length = 20;                     ///< [s] target video length: the run is sped up to fit
+  std::string camera = "casting_closeup";
+  int flash_points = 1500;                ///< flash voxels drawn (each sphere costs render time)
+  double point_radius = 0.0009;           ///< [m]
+};
+
+/// Collects frames during execution. Not copyable; one per run.
+class VideoRecorder {
+ public:
+  /// @param sim_duration the simulated time the execution will take [s] (sets the speed-up)
+  /// @throws ArgumentError (sizes, fps, length), IoError (ffmpeg cannot be started)
+  VideoRecorder(const VideoOptions& options, double sim_duration);
+  ~VideoRecorder();
+  VideoRecorder(const VideoRecorder&) = delete;
+  VideoRecorder& operator=(const VideoRecorder&) = delete;
+
+  /// Called every simulation step; renders when the next frame is due (t: run time [s]).
+  void on_step(const mjModel* model, mjData* data, double t, const sim::MaterialGrid& grid);
+
+  /// Closes the stream; returns the number of frames. @throws IoError when ffmpeg failed.
+  std::size_t finish();
+
+  double speedup() const { return speedup_; }
+
+ private:
+  VideoOptions opt_;
+  double speedup_ = 1, next_t_ = 0;
+  std::size_t frames_ = 0;
+  std::FILE* pipe_ = nullptr;
+  mjModel* model_ = nullptr;  ///< render copy (flash mesh hidden)
+  std::unique_ptr<sim::OffscreenRenderer> renderer_;
+  std::vector<Vec3> flash_sample_C_;
+  Pose X_WC_ = Pose::Identity();
+};
+
+}  // namespace flashtwin::pipeline

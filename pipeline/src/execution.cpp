@@ -1,0 +1,182 @@
+#include "flashtwin/pipeline/execution.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "flashtwin/core/mesh_query.hpp"
+#include "flashtwin/perception/flash_detection.hpp"
+#include "flashtwin/pipeline/run.hpp"
+#include "flashtwin/pipeline/scenario.hpp"
+#include "flashtwin/sim/mujoco_handles.hpp"
+#include "flashtwin/sim/scan_cell.hpp"
+
+namespace flashtwin::pipeline {
+
+using json = nlohmann::ordered_json;
+
+namespace {
+
+json number(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
+
+// The planner's trajectory as the executor takes it: planned TCP in {W}.
+sim::JointTrajectory to_sim(const planner::GrindResult& g, const Pose& X_WB) {
+  sim::JointTrajectory tr;
+  tr.t = g.trajectory.t;
+  tr.q = g.trajectory.q;
+  tr.dq = g.trajectory.dq;
+  tr.planned_tcp_W.reserve(g.tcp_B.size());
+  for (const auto& X_BT : g.tcp_B) tr.planned_tcp_W.push_back(X_WB * X_BT);
+  return tr;
+}
+
+}  // namespace
+
+ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
+                               const std::vector<PlannedPath>& plans, json& m,
+                               const FrameHook& frame_hook) {
+  ExecutionSummary out;
+  out.ran = true;
+  const auto& setup = ss.setup;
+  sim::MaterialGrid grid = sim::make_material_grid(setup.casting, sc.execution.material);
+  const sim::MjModelPtr model = sim::load_mjcf_file(ss.files.mjcf);
+  const sim::ToolParams tool = sim::tool_params_from(sc.robot.tool);
+  sim::ExecParams ep = sc.execution.exec;
+  out.target_force = ep.force_control.target_force;
+
+  double sim_time = 0, wall = 0, track_sq = 0, track_max = 0, track_rot_max = 0;
+  double contact = 0, f_sum = 0, f_sq = 0, f_max = 0;
+  std::size_t track_n = 0, violations = 0, clamped = 0, steps = 0, executed = 0;
+  double limit_excess = 0;
+  std::string status = "ok";
+  for (const auto& [k, g] : plans) {
+    const sim::JointTrajectory tr = to_sim(g, setup.spec.X_WB);
+    const double t0 = sim_time;
+    const std::size_t path = k;
+    if (frame_hook) {
+      ep.on_step = [&, t0, path](const mjModel* mm, mjData* d, double t) {
+        frame_hook(mm, d, t0 + t, grid, path);
+      };
+    }
+    const sim::ExecutionResult r =
+        sim::execute_trajectory(*model, tr, &grid, tool, sc.execution.force, ep);
+    ++executed;
+    spdlog::debug("execution: path {}: {} ({}), {:.1f} s simulated in {:.2f} s, tracking rmse "
+                  "{:.3f} mm, flash removed {:.2f} mm3, gouge {:.3f} mm3",
+                  k, sim::to_string(r.status), r.message, r.sim_time, r.wall_time,
+                  r.tracking_rmse * 1e3, r.removed_flash_volume * 1e9,
+                  r.removed_body_volume * 1e9);
+    const auto& L = r.log;
+    for (std::size_t i = 0; i < L.t.size(); ++i) {
+      out.t.push_back(t0 + L.t[i]);
+      out.path.push_back(static_cast<int>(k));
+      out.normal_force.push_back(L.normal_force[i]);
+      out.tangential_force.push_back(L.tangential_force[i]);
+      out.tracking_error.push_back(
+          i < L.planned_tcp_W.size() ? (L.tcp_W[i] - L.planned_tcp_W[i]).norm() : 0.0);
+      out.sensor_force.push_back(i < L.sensor_force_W.size() ? L.sensor_force_W[i].norm() : 0.0);
+    }
+    sim_time += r.sim_time;
+    wall += r.wall_time;
+    steps += r.steps;
+    track_sq += r.tracking_rmse * r.tracking_rmse * static_cast<double>(r.tracking_samples);
+    track_n += r.tracking_samples;
+    track_max = std::max(track_max, r.tracking_max);
+    track_rot_max = std::max(track_rot_max, r.tracking_max_rotation);
+    violations += r.joint_limit_violations;
+    limit_excess = std::max(limit_excess, r.max_limit_excess);
+    clamped += r.clamped_steps;
+    if (r.contact_time > 0) {
+      contact += r.contact_time;
+      f_sum += r.force_mean * r.contact_time;
+      f_sq += r.force_rmse * r.force_rmse * r.contact_time;
+    }
+    f_max = std::max(f_max, r.force_max);
+    if (r.status != sim::ExecStatus::kOk && status == "ok") status = sim::to_string(r.status);
+    if (r.status == sim::ExecStatus::kUnstable) {
+      out.failed = true;
+      out.failure = "execution of path " + std::to_string(k) + " stopped: " + r.message;
+      break;
+    }
+  }
+
+  out.residual = sim::analyze_residual(grid);
+  out.residual_points_C = sim::remaining_flash_points(grid);
+  out.residual_heights.reserve(out.residual_points_C.size());
+  for (const auto& p : out.residual_points_C)
+    out.residual_heights.push_back(grid.nominal().closest(p).distance);
+  out.gouge_points_C = sim::voxel_points(grid, sim::VoxelLabel::kGouge);
+  out.remaining_flash_C = sim::remaining_flash_mesh(grid);
+
+  m["execution.paths_executed"] = executed;
+  m["execution.status"] = status;
+  m["execution.tracking_rmse_mm"] = track_n ? std::sqrt(track_sq / track_n) * 1e3 : 0.0;
+  m["execution.tracking_max_mm"] = track_max * 1e3;
+  m["execution.tracking_max_rotation_deg"] = track_rot_max * 180 / M_PI;
+  m["execution.joint_limit_violations"] = violations;
+  m["execution.max_limit_excess_rad"] = limit_excess;
+  m["execution.clamped_steps"] = clamped;
+  m["execution.force_control"] = ep.force_control.enabled;
+  const auto& res = out.residual;
+  m["removal.flash_volume_mm3"] = res.flash_volume_initial * 1e9;
+  m["removal.flash_remaining_mm3"] = res.flash_volume_remaining * 1e9;
+  m["removal.flash_removed_fraction"] = res.flash_removed_fraction;
+  m["removal.residual_flash_max_mm"] = res.residual_flash_max * 1e3;
+  m["removal.gouge_max_mm"] = res.gouge_max_depth * 1e3;
+  m["removal.gouge_volume_mm3"] = res.gouge_volume * 1e9;
+  m["removal.voxel_size_mm"] = grid.voxel_size() * 1e3;
+  m["force.target_n"] = out.target_force;
+  m["force.contact_time_s"] = contact;
+  m["force.mean_n"] = contact > 0 ? f_sum / contact : 0.0;
+  m["force.rmse_n"] = contact > 0 ? std::sqrt(f_sq / contact) : 0.0;
+  m["force.rmse_ratio"] = contact > 0 ? std::sqrt(f_sq / contact) / out.target_force : 0.0;
+  m["force.max_n"] = f_max;
+  m["sim.time_s"] = sim_time;
+  m["sim.steps"] = steps;
+  m["sim.realtime_factor"] = number(wall > 0 ? sim_time / wall : NAN);
+  m["sim.step_us"] = steps ? wall / static_cast<double>(steps) * 1e6 : 0.0;
+  return out;
+}
+
+void rescan_after(const Scenario& sc, const ScenarioScan& ss, const Pose& X_CM_est,
+                  ExecutionSummary& summary, json& m) {
+  // The part as it is now: the nominal body and the remaining flash (voxel surface).
+  sim::Casting after;
+  after.family = ss.setup.casting.family;
+  after.description = ss.setup.casting.description;
+  after.nominal = ss.setup.casting.nominal;
+  after.parting_height = ss.setup.casting.parting_height;
+  after.size = ss.setup.casting.size;
+  if (!summary.remaining_flash_C.triangles.empty()) {
+    sim::Fin fin;
+    fin.kind = "residual";
+    fin.mesh = summary.remaining_flash_C;
+    fin.volume = summary.residual.flash_volume_remaining;
+    after.fins.push_back(std::move(fin));
+  }
+  sim::ScanParams params = sc.scan;
+  params.seed = sc.seed + 1000003;  // a new scan, not a replay of the first one's noise
+  params.threads = std::max(1, params.threads);
+  const sim::CellScan scan = sim::scan_cell(ss.files.mjcf, after, params, ss.scan.X_WM_nominal,
+                                            ss.scan.X_WM_true);
+  const MeshBvh cad(ss.setup.casting.nominal);
+  const auto det = perception::detect_flash(scan.result.cloud_M, cad, X_CM_est, sc.detection);
+  summary.rescanned = true;
+  std::size_t flash_pts = 0;
+  double worst = 0;
+  for (std::size_t i = 0; i < det.labels.size(); ++i) {
+    if (det.labels[i] != 1) continue;
+    ++flash_pts;
+    const Vec3 p_C = X_CM_est * scan.result.cloud_M.points[i].cast<double>();
+    summary.rescan_flash_C.push_back(p_C);
+    worst = std::max(worst, cad.closest(p_C).distance);
+  }
+  m["rescan.points"] = scan.result.cloud_M.size();
+  m["rescan.flash_points"] = flash_pts;
+  m["rescan.flash_regions"] = det.regions.size();
+  m["rescan.residual_max_mm"] = worst * 1e3;
+  m["rescan.paths"] = det.paths.size();
+}
+
+}  // namespace flashtwin::pipeline

@@ -1,0 +1,82 @@
+#include "flashtwin/pipeline/video.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "flashtwin/core/errors.hpp"
+#include "flashtwin/sim/renderer.hpp"
+
+namespace flashtwin::pipeline {
+
+VideoRecorder::VideoRecorder(const VideoOptions& o, double sim_duration) : opt_(o) {
+  if (o.width < 16 || o.height < 16 || o.width % 2 || o.height % 2 || o.width > 1920 ||
+      o.height > 1080)
+    throw ArgumentError("video: expected an even width and height within 16..1920 x 16..1080, got " +
+                        std::to_string(o.width) + "x" + std::to_string(o.height));
+  if (o.fps < 1 || o.fps > 120) throw ArgumentError("video.fps: expected 1..120");
+  if (!(o.length > 0)) throw ArgumentError("video.length: expected > 0 s");
+  if (o.flash_points < 0) throw ArgumentError("video.flash_points: expected >= 0");
+  speedup_ = std::max(1.0, sim_duration / o.length);
+  const std::string cmd = "ffmpeg -loglevel error -y -f rawvideo -pix_fmt rgb24 -s " +
+                          std::to_string(o.width) + "x" + std::to_string(o.height) + " -r " +
+                          std::to_string(o.fps) +
+                          " -i - -c:v libx264 -pix_fmt yuv420p -crf 23 -movflags +faststart '" +
+                          o.path + "'";
+  pipe_ = ::popen(cmd.c_str(), "w");
+  if (!pipe_) throw IoError(o.path + ": cannot start ffmpeg (is it installed?)");
+}
+
+VideoRecorder::~VideoRecorder() {
+  if (pipe_) ::pclose(pipe_);
+  if (model_) mj_deleteModel(model_);
+}
+
+void VideoRecorder::on_step(const mjModel* m, mjData* d, double t, const sim::MaterialGrid& grid) {
+  if (!pipe_ || t + 1e-9 < next_t_) return;
+  if (!renderer_) {
+    // A render copy of the model with the static flash mesh hidden; the flash is drawn from
+    // the voxel grid instead.
+    model_ = mj_copyModel(nullptr, m);
+    const int g = mj_name2id(model_, mjOBJ_GEOM, "casting_flash");
+    if (g >= 0) model_->geom_rgba[4 * g + 3] = 0;
+    renderer_ = std::make_unique<sim::OffscreenRenderer>(model_, opt_.width, opt_.height);
+    const auto all = sim::remaining_flash_points(grid);
+    const double step = std::max(1.0, static_cast<double>(all.size()) / std::max(1, opt_.flash_points));
+    for (double k = 0; k < static_cast<double>(all.size()); k += step)
+      flash_sample_C_.push_back(all[static_cast<std::size_t>(k)]);
+  }
+  const int body = mj_name2id(m, mjOBJ_BODY, "casting");
+  if (body >= 0) {
+    Mat3 R;
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) R(r, c) = d->xmat[9 * body + 3 * r + c];
+    X_WC_.linear() = R;
+    X_WC_.translation() = Vec3(d->xpos[3 * body], d->xpos[3 * body + 1], d->xpos[3 * body + 2]);
+  }
+  sim::PointOverlay overlay;
+  overlay.radius = opt_.point_radius;
+  overlay.colors = {{217, 89, 26}};
+  for (const auto& p : flash_sample_C_)
+    if (grid.label_at(p) == sim::VoxelLabel::kFlash) overlay.points_W.push_back(X_WC_ * p);
+  const Image img = renderer_->render(d, opt_.camera, &overlay);
+  const auto& px = img.pixels();
+  if (std::fwrite(px.data(), 1, px.size(), pipe_) != px.size())
+    throw IoError(opt_.path + ": ffmpeg stopped taking frames");
+  ++frames_;
+  next_t_ += speedup_ / opt_.fps;
+  if (next_t_ < t) next_t_ = t + speedup_ / opt_.fps;
+}
+
+std::size_t VideoRecorder::finish() {
+  if (pipe_) {
+    const int rc = ::pclose(pipe_);
+    pipe_ = nullptr;
+    if (rc != 0) throw IoError(opt_.path + ": ffmpeg failed (exit status " + std::to_string(rc) + ")");
+  }
+  renderer_.reset();
+  return frames_;
+}
+
+}  // namespace flashtwin::pipeline

@@ -1,0 +1,77 @@
+// Sweeps and scenario overrides: seed lists, shards, summaries, --set on the YAML, report pieces.
+#include <gtest/gtest.h>
+
+#include "flashtwin/core/errors.hpp"
+#include "flashtwin/pipeline/report.hpp"
+#include "flashtwin/pipeline/scenario.hpp"
+#include "flashtwin/pipeline/sweep.hpp"
+#include "test_util.hpp"
+
+using namespace flashtwin;
+using namespace flashtwin::pipeline;
+
+TEST(Sweep, SeedListsAndShards) {
+  EXPECT_EQ(parse_seeds("3"), (std::vector<std::uint64_t>{3}));
+  EXPECT_EQ(parse_seeds("1-4,9,3-5"), (std::vector<std::uint64_t>{1, 2, 3, 4, 9, 5}));
+  EXPECT_EQ(parse_seeds("1-100").size(), 100u);
+  for (const char* bad : {"", "a", "5-1", "1-", "-3", "1,,2", "1.5"})
+    EXPECT_THROW(parse_seeds(bad), ArgumentError) << bad;
+  EXPECT_EQ(parse_shard("0/1"), std::make_pair(0, 1));
+  EXPECT_EQ(parse_shard("3/16"), std::make_pair(3, 16));
+  for (const char* bad : {"1/1", "-1/4", "4", "a/b", "2/0", "1/2x"})
+    EXPECT_THROW(parse_shard(bad), ArgumentError) << bad;
+}
+
+TEST(Sweep, SummaryStatisticsAndFailures) {
+  std::vector<nlohmann::ordered_json> runs(3);
+  runs[0] = {{"seed", 1}, {"exit_code", 0}, {"path.rmse_mm", 0.1}, {"registration.confident", true}};
+  runs[1] = {{"seed", 2}, {"exit_code", 1}, {"path.rmse_mm", 0.3}, {"registration.confident", false}};
+  runs[2] = {{"seed", 3}, {"exit_code", 0}, {"path.rmse_mm", 0.2}, {"registration.confident", true},
+             {"verdict", "text is skipped"}};
+  const auto s = summarize_runs(runs);
+  EXPECT_EQ(s["runs"], 3);
+  EXPECT_EQ(s["failures"], 1);
+  EXPECT_EQ(s["failed_seeds"], nlohmann::ordered_json::array({2}));
+  EXPECT_NEAR(s["metrics"]["path.rmse_mm"]["mean"].get<double>(), 0.2, 1e-12);
+  EXPECT_DOUBLE_EQ(s["metrics"]["path.rmse_mm"]["min"].get<double>(), 0.1);
+  EXPECT_DOUBLE_EQ(s["metrics"]["path.rmse_mm"]["max"].get<double>(), 0.3);
+  EXPECT_NEAR(s["metrics"]["registration.confident"]["mean"].get<double>(), 2.0 / 3, 1e-12);
+  EXPECT_FALSE(s["metrics"].contains("verdict"));
+  EXPECT_FALSE(s["metrics"].contains("seed"));
+}
+
+TEST(Scenario, OverridesSetKeysAndUnknownKeysAreStillReported) {
+  const std::string path = ftest::source_path("scenarios/default.yaml");
+  const Scenario base = load_scenario(path);
+  const Scenario sc = load_scenario(
+      path, {"planning.feed=0.02", "execution.force_control.enabled=true",
+             "execution.force_control.target_force=15", "process.voxel_size=0.0002", "seed=9"});
+  EXPECT_DOUBLE_EQ(sc.grind.feed, 0.02);
+  EXPECT_NE(base.grind.feed, 0.02);
+  EXPECT_TRUE(sc.execution.exec.force_control.enabled);
+  EXPECT_DOUBLE_EQ(sc.execution.exec.force_control.target_force, 15);
+  EXPECT_DOUBLE_EQ(sc.execution.material.voxel_size, 2e-4);
+  EXPECT_EQ(sc.seed, 9u);
+  EXPECT_EQ(sc.robot.name, base.robot.name);  // relative paths still resolve
+  EXPECT_THROW(load_scenario(path, {"planning.fed=0.02"}), ConfigError);       // typo
+  EXPECT_THROW(load_scenario(path, {"planning.feed=-1"}), ConfigError);        // out of range
+  EXPECT_THROW(load_scenario(path, {"process.voxel_size=abc"}), ConfigError);  // not a number
+  EXPECT_THROW(load_scenario(path, {"noequals"}), ConfigError);
+  EXPECT_THROW(load_scenario(path, {"name.x=1"}), ConfigError);  // below a scalar
+  Scenario s2 = base;
+  set_seed(s2, 42);
+  EXPECT_EQ(s2.seed, 42u);
+  EXPECT_EQ(s2.scan.seed, 42u);
+  EXPECT_EQ(s2.casting.seed, 42u);
+}
+
+TEST(Report, Base64MatchesRfc4648Vectors) {
+  EXPECT_EQ(base64_encode(""), "");
+  EXPECT_EQ(base64_encode("f"), "Zg==");
+  EXPECT_EQ(base64_encode("fo"), "Zm8=");
+  EXPECT_EQ(base64_encode("foo"), "Zm9v");
+  EXPECT_EQ(base64_encode("foob"), "Zm9vYg==");
+  EXPECT_EQ(base64_encode("fooba"), "Zm9vYmE=");
+  EXPECT_EQ(base64_encode("foobar"), "Zm9vYmFy");
+  EXPECT_EQ(base64_encode(std::string("\xff\x00\x80", 3)), "/wCA");
+}
