@@ -310,6 +310,15 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     g.max_extra_tilt = pl2.get_double("max_extra_tilt", 0, 1.2, g.max_extra_tilt);
   }
 
+  if (root.has("tool")) {
+    // The burr on the spindle (the robot file's tool, resized): the cell draws it, the planner
+    // and the process model use it.
+    const ConfigNode t = root.at("tool");
+    sc.robot.tool.radius = t.get_double("radius", 5e-4, 0.05, sc.robot.tool.radius);
+    sc.robot.tool.length = t.get_double("length", 1e-3, 0.2, sc.robot.tool.length);
+    if (sc.robot.tool.length < sc.robot.tool.radius)
+      t.fail("expected length >= radius (the ball-ended burr needs it)");
+  }
   if (root.has("execution")) {
     const ConfigNode ex = root.at("execution");
     auto& e = sc.execution;
@@ -317,6 +326,7 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     e.rescan = ex.get_bool("rescan", e.rescan);
     e.exec.settle_time = ex.get_double("settle_time", 0, 10, e.exec.settle_time);
     e.exec.feedforward = ex.get_bool("feedforward", e.exec.feedforward);
+    e.exec.load_compensation = ex.get_bool("load_compensation", e.exec.load_compensation);
     e.exec.log_decimation =
         static_cast<int>(ex.get_int("log_decimation", 1, 100000, e.exec.log_decimation));
     if (ex.has("force_control")) {

@@ -77,7 +77,7 @@ json summarize_runs(const std::vector<json>& runs) {
   };
   std::map<std::string, Stat> stats;
   std::vector<std::string> order;
-  json failed = json::array();
+  json failed = json::array(), outside = json::array();
   std::size_t failures = 0;
   for (const auto& r : runs) {
     const int code = r.value("exit_code", 1);
@@ -85,9 +85,10 @@ json summarize_runs(const std::vector<json>& runs) {
       ++failures;
       failed.push_back(r.value("seed", json(nullptr)));
     }
+    if (r.value("expect_violations", 0) > 0) outside.push_back(r.value("seed", json(nullptr)));
     for (auto it = r.begin(); it != r.end(); ++it) {
       const auto& v = it.value();
-      if (it.key() == "seed" || it.key() == "exit_code") continue;
+      if (it.key() == "seed" || it.key() == "exit_code" || it.key() == "expect_violations") continue;
       double x;
       if (v.is_number()) x = v.get<double>();
       else if (v.is_boolean()) x = v.get<bool>() ? 1 : 0;
@@ -106,6 +107,8 @@ json summarize_runs(const std::vector<json>& runs) {
   out["runs"] = runs.size();
   out["failures"] = failures;
   out["failed_seeds"] = failed;
+  out["outside_expect"] = outside.size();
+  out["outside_expect_seeds"] = outside;
   json metrics = json::object();
   for (const auto& k : order) {
     const Stat& s = stats[k];
@@ -145,7 +148,6 @@ SweepResult run_sweep(const Scenario& base, const SweepOptions& o) {
         line = std::move(r.metrics);
         const auto bad = check_expectations(sc, line);
         line["expect_violations"] = bad.size();
-        if (!bad.empty() && line.value("exit_code", 0) == 0) line["exit_code"] = 1;
       } catch (const std::exception& e) {
         line = json::object();
         line["scenario"] = sc.name;
@@ -180,7 +182,8 @@ SweepResult run_sweep(const Scenario& base, const SweepOptions& o) {
   write_text_file(out.summary_path, out.summary.dump(2) + "\n");
   std::ostringstream md;
   md << "# Sweep of " << base.name << " (" << out.runs << " runs, " << out.failures
-     << " failed, shard " << o.shard << "/" << o.shards << ")\n\n"
+     << " failed, " << out.summary["outside_expect"].get<std::size_t>()
+     << " outside the scenario's expect: bounds, shard " << o.shard << "/" << o.shards << ")\n\n"
      << "| metric | mean | min | max | runs |\n|---|---:|---:|---:|---:|\n";
   for (auto it = out.summary["metrics"].begin(); it != out.summary["metrics"].end(); ++it) {
     char buf[256];
@@ -190,6 +193,8 @@ SweepResult run_sweep(const Scenario& base, const SweepOptions& o) {
     md << buf;
   }
   if (out.failures) md << "\nFailed seeds: " << out.summary["failed_seeds"].dump() << "\n";
+  if (!out.summary["outside_expect_seeds"].empty())
+    md << "Seeds outside the expect: bounds: " << out.summary["outside_expect_seeds"].dump() << "\n";
   out.table_path = (fs::path(o.out_dir) / ("summary" + suffix + ".md")).string();
   write_text_file(out.table_path, md.str());
   return out;

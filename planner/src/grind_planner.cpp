@@ -27,6 +27,8 @@ std::string to_string(GrindStatus status) {
       return "discontinuous";
     case GrindStatus::kTimingFailed:
       return "timing_failed";
+    case GrindStatus::kToolTooLarge:
+      return "tool_too_large";
   }
   return "unknown";
 }
@@ -580,6 +582,31 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
                "away from the fin normal, got %s",
                i, vec_text(n).c_str()));
     wall[i] = np.normalized();
+  }
+
+  // ---- The burr must fit: a closed loop whose wall faces its centre is a hole, and the burr
+  // (radius r) cannot follow a hole narrower than r plus a small clearance.
+  if (path.closed && N0 >= 3) {
+    Vec3 c = Vec3::Zero();
+    for (const Vec3& p : path.points_C) c += p;
+    c /= static_cast<double>(N0);
+    double inward = 0, r_min = 1e300;
+    for (std::size_t i = 0; i < N0; ++i) {
+      Vec3 v = c - path.points_C[i];
+      v -= v.dot(f) * f;
+      const double dist = v.norm();
+      r_min = std::min(r_min, dist);
+      if (dist > 1e-12) inward += wall[i].dot(v / dist);
+    }
+    constexpr double kClearance = 2e-4;
+    if (inward / static_cast<double>(N0) > 0.5 && r_min < radius + kClearance) {
+      GrindResult res;
+      res.status = GrindStatus::kToolTooLarge;
+      res.message = strf("hole of radius %.2f mm (nearest root point to its centre) is too narrow "
+                         "for the burr of radius %.2f mm (+%.1f mm clearance): needs a smaller burr",
+                         r_min * 1e3, radius * 1e3, kClearance * 1e3);
+      return res;
+    }
   }
 
   // ---- Thin the points to at least `spacing` apart (the spline rejects duplicates).

@@ -506,6 +506,17 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
       mj_inverse(m, dff);
       for (int i = 0; i < kNumJoints; ++i) tau_ff[i] = dff->qfrc_inverse[c.dadr[i]];
     }
+    if (params.load_compensation) {
+      // Deflection compensation: cancel the process wrench of the previous step (what the
+      // flange F/T sensor measures) through the Jacobian at the tool's centre of mass.
+      const mjtNum* xf = d->xfrc_applied + 6 * c.tool;
+      if (xf[0] != 0 || xf[1] != 0 || xf[2] != 0 || xf[3] != 0 || xf[4] != 0 || xf[5] != 0) {
+        mj_jacBodyCom(m, d, jacp.data(), jacr.data(), c.tool);
+        for (int i = 0; i < kNumJoints; ++i)
+          for (int k = 0; k < 3; ++k)
+            tau_ff[i] -= jacp[k * m->nv + c.dadr[i]] * xf[k] + jacr[k * m->nv + c.dadr[i]] * xf[3 + k];
+      }
+    }
     for (int i = 0; i < kNumJoints; ++i) d->ctrl[c.act[i]] = r.q[i] + tau_ff[i] / c.kp[i];
 
     // The wrench applied this step. The rate part (grinding) is a resistance to the feed: with

@@ -46,7 +46,7 @@ int lines(const std::string& s) {
 }  // namespace
 
 TEST(Cli, HelpForEverySubcommand) {
-  for (const char* sub : {"", "fk", "ik", "workspace", "cell"}) {
+  for (const char* sub : {"", "fk", "ik", "workspace", "cell", "run", "sweep", "plan", "detect"}) {
     const CliRun r = run(std::string(sub) + " --help");
     EXPECT_EQ(r.code, 0) << sub;
     EXPECT_NE(r.out.find("Usage"), std::string::npos) << sub;
@@ -259,4 +259,135 @@ TEST(Cli, RegisterRecoversAScanPoseAndRejectsBadClouds) {
     EXPECT_EQ(b.code, 2) << c.file << "\n" << b.err;
     EXPECT_NE(b.err.find(c.needle), std::string::npos) << c.file << "\n" << b.err;
   }
+}
+
+namespace {
+
+// metrics.json without the wall-clock figures (the only thing allowed to differ between runs).
+nlohmann::json without_timings(nlohmann::json m) {
+  for (auto it = m.begin(); it != m.end();) {
+    const std::string k = it.key();
+    const bool timing = k.rfind("timing.", 0) == 0 || k == "sim.realtime_factor" ||
+                        k == "sim.step_us" || k == "scan.rays_per_s" || k == "registration.time_s" ||
+                        k == "segmentation.time_s";
+    it = timing ? m.erase(it) : std::next(it);
+  }
+  return m;
+}
+
+}  // namespace
+
+TEST(Cli, RunIsDeterministicAndWritesTheClosedLoopOutputs) {
+  // The user-mesh scenario end to end, twice with the same seed: identical metrics (timings
+  // aside), all DESIGN.md keys present, the report self-contained.
+  const std::string a = ftest::temp_dir("run_a"), b = ftest::temp_dir("run_b");
+  const std::string sc = ftest::source_path("scenarios/user_mesh.yaml");
+  const CliRun ra = run("-q run " + sc + " -o " + a);
+  const CliRun rb = run("-q run " + sc + " -o " + b + " --no-report");
+  ASSERT_EQ(ra.code, 0) << ra.err;
+  ASSERT_EQ(rb.code, 0) << rb.err;
+  const auto ma = nlohmann::json::parse(slurp(a + "/metrics.json"));
+  const auto mb = nlohmann::json::parse(slurp(b + "/metrics.json"));
+  EXPECT_EQ(without_timings(ma), without_timings(mb));
+  for (const char* k :
+       {"registration.rotation_error_deg", "registration.translation_error_mm",
+        "registration.confident", "registration.time_s", "segmentation.precision",
+        "segmentation.recall", "path.rmse_mm", "path.mean_mm", "path.max_mm", "path.coverage",
+        "trajectory.max_joint_velocity_ratio", "trajectory.max_joint_accel_ratio",
+        "trajectory.min_manipulability", "execution.tracking_rmse_mm", "execution.tracking_max_mm",
+        "execution.joint_limit_violations", "removal.flash_removed_fraction",
+        "removal.residual_flash_max_mm", "removal.gouge_max_mm", "removal.gouge_volume_mm3",
+        "force.mean_n", "force.rmse_n", "force.max_n", "timing.total_s", "timing.scan_s",
+        "timing.perception_s", "timing.planning_s", "timing.execution_s", "sim.realtime_factor",
+        "scan.points", "scan.rays_per_s"})
+    EXPECT_TRUE(ma.contains(k)) << k;
+  EXPECT_EQ(ma["execution.joint_limit_violations"], 0);
+  EXPECT_GT(ma["removal.flash_removed_fraction"].get<double>(), 0.5);
+  const std::string html = slurp(a + "/report.html");
+  EXPECT_NE(html.find("data:image/png;base64,"), std::string::npos);
+  EXPECT_EQ(html.find("src=\"report/"), std::string::npos);  // nothing linked, all embedded
+  EXPECT_NE(html.find("removal.flash_removed_fraction"), std::string::npos);
+  EXPECT_TRUE(std::filesystem::exists(a + "/trajectory.csv"));
+  EXPECT_TRUE(std::filesystem::exists(a + "/plan/path_0/flashtwin_path_0.src"));
+  EXPECT_FALSE(std::filesystem::exists(b + "/report.html"));
+}
+
+TEST(Cli, RunRejectsBadScenariosWithExitTwo) {
+  const std::string tmp = ftest::temp_dir("cli_run_bad");
+  const std::string sc = ftest::source_path("scenarios/default.yaml");
+  {
+    std::ofstream f(tmp + "/malformed.yaml");
+    f << "name: x\nseed: [1, 2\n";
+  }
+  {
+    std::ofstream f(tmp + "/missing_mesh.yaml");
+    f << "name: m\nrobot: " << ftest::source_path("models/robots/ft6.yaml")
+      << "\ncasting: {family: mesh, mesh: /nonexistent/part.stl}\n";
+  }
+  struct Case {
+    std::string args, needle;
+  };
+  const Case cases[] = {
+      {"run " + tmp + "/malformed.yaml -o " + tmp + "/o1", "malformed.yaml"},
+      {"run " + sc + " -o " + tmp + "/o2 --set planning.fed=0.01", "planning.fed"},
+      {"run " + sc + " -o " + tmp + "/o3 --set process.voxel_size=0", "process.voxel_size"},
+      {"run " + sc + " -o " + tmp + "/o4 --set tool.radius=-1", "tool.radius"},
+      {"run " + tmp + "/missing_mesh.yaml -o " + tmp + "/o5", "/nonexistent/part.stl"},
+      {"sweep " + sc + " -o " + tmp + "/o6 --seeds 5-1", "--seeds 5-1"},
+      {"sweep " + sc + " -o " + tmp + "/o7 --shard 3/2", "--shard 3/2"},
+  };
+  for (const auto& c : cases) {
+    const CliRun r = run("-q " + c.args);  // -q: no progress lines on stderr, only the error
+    EXPECT_EQ(r.code, 2) << c.args << "\n" << r.err;
+    EXPECT_NE(r.err.find(c.needle), std::string::npos) << c.args << "\n" << r.err;
+    EXPECT_EQ(lines(r.err), 1) << c.args << "\n" << r.err;
+  }
+  for (const char* o : {"/o1", "/o2", "/o3", "/o4", "/o5"})
+    EXPECT_FALSE(std::filesystem::exists(tmp + o + "/metrics.json")) << o;
+}
+
+TEST(Cli, OutOfReachIsRefusedWithTheReason) {
+  const std::string out = ftest::temp_dir("cli_reach");
+  const CliRun r =
+      run("run " + ftest::source_path("scenarios/out_of_reach.yaml") + " -o " + out + " --no-report");
+  EXPECT_EQ(r.code, 1) << r.err;
+  EXPECT_NE(r.out.find("could not be planned"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("unreachable"), std::string::npos) << r.out;
+  const auto m = nlohmann::json::parse(slurp(out + "/metrics.json"));
+  EXPECT_EQ(m["trajectory.paths_planned"], 0);
+  EXPECT_FALSE(m.contains("execution.paths_executed"));
+}
+
+TEST(Cli, PlanTurnsDetectedPathsIntoTrajectoriesAndPrograms) {
+  // A straight 60 mm fin root along the top edge of a box wall, the box in front of the robot.
+  const std::string dir = ftest::temp_dir("cli_plan");
+  flashtwin::save_mesh(dir + "/box.stl",
+                       flashtwin::box_mesh(flashtwin::Vec3(-0.05, -0.05, 0), flashtwin::Vec3(0.05, 0.05, 0.04)));
+  nlohmann::json paths;
+  nlohmann::json pts = nlohmann::json::array(), nrm = nlohmann::json::array();
+  for (int i = 0; i <= 60; ++i) {
+    pts.push_back({0.05, -0.03 + 0.001 * i, 0.02});
+    nrm.push_back({1.0, 0.0, 0.0});
+  }
+  paths["paths"] = {{{"points", pts}, {"normals", nrm}, {"fin_normal", {0, 0, 1}}, {"closed", false}}};
+  std::ofstream(dir + "/paths.json") << paths.dump();
+  std::ofstream(dir + "/pose.json") << "{\"X_BC\": [1,0,0,0.6, 0,1,0,0, 0,0,1,-0.2, 0,0,0,1]}";
+  const CliRun r = run("plan --path " + dir + "/paths.json --cad " + dir + "/box.stl --pose " + dir +
+                       "/pose.json -o " + dir + "/out --export urscript --json");
+  ASSERT_EQ(r.code, 0) << r.err << r.out;
+  const auto j = nlohmann::json::parse(r.out);
+  ASSERT_EQ(j.size(), 1u);
+  EXPECT_EQ(j[0]["status"], "ok");
+  EXPECT_LE(j[0]["max_joint_velocity_ratio"].get<double>(), 1.0);
+  EXPECT_TRUE(std::filesystem::exists(dir + "/out/path_0/trajectory.csv"));
+  const std::string prog = slurp(dir + "/out/path_0/flashtwin_path_0.script");
+  EXPECT_NE(prog.find("def flashtwin_path_0"), std::string::npos);
+  // The same path 20 mm off the CAD surface: a frame or unit mistake, exit 2.
+  std::ofstream(dir + "/pose2.json") << "{\"X_BC\": [1,0,0,0.6, 0,1,0,0, 0,0,1,-0.2, 0,0,0,1]}";
+  for (auto& p : paths["paths"][0]["points"]) p[0] = 0.07;
+  std::ofstream(dir + "/far.json") << paths.dump();
+  const CliRun bad = run("plan --path " + dir + "/far.json --cad " + dir + "/box.stl --pose " + dir +
+                         "/pose2.json -o " + dir + "/out2");
+  EXPECT_EQ(bad.code, 2) << bad.err;
+  EXPECT_NE(bad.err.find("off the CAD surface"), std::string::npos) << bad.err;
 }

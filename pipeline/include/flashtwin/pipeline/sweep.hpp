@@ -42,7 +42,9 @@ struct SweepResult {
 SweepResult run_sweep(const Scenario& scenario, const SweepOptions& options);
 
 /// Per-metric statistics over JSON lines of metrics (numbers only; booleans count trues):
-/// {"runs": n, "failures": f, "failed_seeds": [...], "metrics": {key: {mean, min, max, n}}}.
+/// {"runs": n, "failures": f (exit code ≠ 0), "failed_seeds": [...], "outside_expect": e (runs
+/// with expect_violations > 0), "outside_expect_seeds": [...], "metrics": {key: {mean, min, max,
+/// n}}}.
 nlohmann::ordered_json summarize_runs(const std::vector<nlohmann::ordered_json>& runs);
 
 }  // namespace flashtwin::pipeline

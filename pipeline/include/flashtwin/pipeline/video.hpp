@@ -20,10 +20,10 @@ namespace flashtwin::pipeline {
 struct VideoOptions {
   std::string path;                       ///< output .mp4
   int width = 800, height = 600;          ///< [px], even numbers (H.264 4:2:0)
-  int fps = 25;
-  double length = 20;                     ///< [s] target video length: the run is sped up to fit
+  int fps = 20;
+  double length = 12;                     ///< [s] target video length: the run is sped up to fit
   std::string camera = "casting_closeup";
-  int flash_points = 1500;                ///< flash voxels drawn (each sphere costs render time)
+  int flash_points = 1200;                ///< flash voxels drawn (each sphere costs render time)
   double point_radius = 0.0009;           ///< [m]
 };
 

@@ -112,6 +112,7 @@ enum class GrindStatus {
   kSingular,       ///< manipulability stays below the threshold for every allowed re-orientation
   kDiscontinuous,  ///< the chosen branch jumps (or is lost) between samples, not repairable
   kTimingFailed,   ///< time_parametrize refused the joint path (see message)
+  kToolTooLarge,   ///< a hole (closed loop, wall facing inward) narrower than the burr + 0.2 mm
 };
 
 /// Why a range of samples was re-oriented (or could not be).

@@ -68,6 +68,10 @@ struct ExecParams {
   double timestep = 0;       ///< [s] MuJoCo step; 0 = the model's. Must be ≤ 0.001 (≥ 1 kHz)
   double settle_time = 0.2;  ///< [s] the last sample is held this long after the trajectory
   bool feedforward = true;   ///< inverse-dynamics feed-forward torque at the reference
+  /// Deflection compensation, as robots with a flange F/T sensor do: the process wrench of the
+  /// previous step is cancelled through Jᵀ in the feed-forward torque (still bounded by the
+  /// actuators' torque limits), so the servos hold the planned pose under the grinding load.
+  bool load_compensation = true;
   ForceControlParams force_control;
   int log_decimation = 10;  ///< one log row every this many steps (≥ 1), plus the last step
   /// [rad] references are kept this far inside each joint's range, so the servo's overshoot
