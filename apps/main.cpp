@@ -690,11 +690,7 @@ int cmd_plan(const Common& c, const std::string& paths_path, const std::string& 
         pp.dialect = export_lang == "krl" ? ft::planner::ProgramDialect::kKrl
                                           : ft::planner::ProgramDialect::kUrScript;
         pp.name = "flashtwin_path_" + std::to_string(k);
-        const auto prog = ft::planner::export_program(robot, g.trajectory, pp);
-        const std::string file =
-            (std::filesystem::path(dir) / (pp.name + (export_lang == "krl" ? ".src" : ".script"))).string();
-        ft::planner::write_program(prog, file);
-        pj["program"] = file;
+        pj["program"] = ft::planner::export_program_file(robot, g.trajectory, pp, dir);
       }
     } else {
       ++failed;
@@ -715,7 +711,7 @@ int cmd_plan(const Common& c, const std::string& paths_path, const std::string& 
     std::printf("%zu path(s), %d failed; outputs in %s/path_*/ and %s/plans.json\n", paths.size(),
                 failed, out.c_str(), out.c_str());
   }
-  if (paths.empty()) std::printf("nothing to grind\n");
+  if (paths.empty() && !c.json) std::printf("nothing to grind\n");
   return failed ? kExitFailed : kExitOk;
 }
 

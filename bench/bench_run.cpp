@@ -34,6 +34,6 @@ void BM_RunScenario(benchmark::State& state, const std::string& name, bool repor
 }  // namespace
 
 BENCHMARK_CAPTURE(BM_RunScenario, default_with_report, std::string("default"), true)
-    ->Unit(benchmark::kSecond)->Iterations(1)->Repetitions(3)->ReportAggregatesOnly(false);
+    ->Unit(benchmark::kSecond)->Iterations(1)->Repetitions(3);
 BENCHMARK_CAPTURE(BM_RunScenario, user_mesh_no_report, std::string("user_mesh"), false)
     ->Unit(benchmark::kSecond)->Iterations(1)->Repetitions(2);

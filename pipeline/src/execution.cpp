@@ -18,8 +18,6 @@ using json = nlohmann::ordered_json;
 
 namespace {
 
-json number(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
-
 // The planner's trajectory as the executor takes it: planned TCP in {W}.
 sim::JointTrajectory to_sim(const planner::GrindResult& g, const Pose& X_WB) {
   sim::JointTrajectory tr;
@@ -39,7 +37,9 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
   ExecutionSummary out;
   out.ran = true;
   const auto& setup = ss.setup;
-  sim::MaterialGrid grid = sim::make_material_grid(setup.casting, sc.execution.material);
+  auto grid_ptr = std::make_shared<sim::MaterialGrid>(
+      sim::make_material_grid(setup.casting, sc.execution.material));
+  sim::MaterialGrid& grid = *grid_ptr;
   const sim::MjModelPtr model = sim::load_mjcf_file(ss.files.mjcf);
   const sim::ToolParams tool = sim::tool_params_from(sc.robot.tool);
   sim::ExecParams ep = sc.execution.exec;
@@ -53,10 +53,9 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
   for (const auto& [k, g] : plans) {
     const sim::JointTrajectory tr = to_sim(g, setup.spec.X_WB);
     const double t0 = sim_time;
-    const std::size_t path = k;
     if (frame_hook) {
-      ep.on_step = [&, t0, path](const mjModel* mm, mjData* d, double t) {
-        frame_hook(mm, d, t0 + t, grid, path);
+      ep.on_step = [&, t0](const mjModel* mm, mjData* d, double t) {
+        frame_hook(mm, d, t0 + t, grid);
       };
     }
     const sim::ExecutionResult r =
@@ -70,7 +69,6 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
     const auto& L = r.log;
     for (std::size_t i = 0; i < L.t.size(); ++i) {
       out.t.push_back(t0 + L.t[i]);
-      out.path.push_back(static_cast<int>(k));
       out.normal_force.push_back(L.normal_force[i]);
       out.tangential_force.push_back(L.tangential_force[i]);
       out.tracking_error.push_back(
@@ -102,12 +100,8 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
   }
 
   out.residual = sim::analyze_residual(grid);
-  out.residual_points_C = sim::remaining_flash_points(grid);
-  out.residual_heights.reserve(out.residual_points_C.size());
-  for (const auto& p : out.residual_points_C)
-    out.residual_heights.push_back(grid.nominal().closest(p).distance);
-  out.gouge_points_C = sim::voxel_points(grid, sim::VoxelLabel::kGouge);
   out.remaining_flash_C = sim::remaining_flash_mesh(grid);
+  out.grid = grid_ptr;
 
   m["execution.paths_executed"] = executed;
   m["execution.status"] = status;
@@ -134,7 +128,7 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
   m["force.max_n"] = f_max;
   m["sim.time_s"] = sim_time;
   m["sim.steps"] = steps;
-  m["sim.realtime_factor"] = number(wall > 0 ? sim_time / wall : NAN);
+  m["sim.realtime_factor"] = finite_or_null(wall > 0 ? sim_time / wall : NAN);
   m["sim.step_us"] = steps ? wall / static_cast<double>(steps) * 1e6 : 0.0;
   return out;
 }
@@ -160,9 +154,8 @@ void rescan_after(const Scenario& sc, const ScenarioScan& ss, const Pose& X_CM_e
   params.threads = std::max(1, params.threads);
   const sim::CellScan scan = sim::scan_cell(ss.files.mjcf, after, params, ss.scan.X_WM_nominal,
                                             ss.scan.X_WM_true);
-  const MeshBvh cad(ss.setup.casting.nominal);
+  const MeshBvh& cad = summary.grid->nominal();  // the CAD's closest-point tree, built once
   const auto det = perception::detect_flash(scan.result.cloud_M, cad, X_CM_est, sc.detection);
-  summary.rescanned = true;
   std::size_t flash_pts = 0;
   double worst = 0;
   for (std::size_t i = 0; i < det.labels.size(); ++i) {

@@ -15,6 +15,7 @@
 #include "flashtwin/pipeline/run.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
 #include "flashtwin/sim/cell.hpp"
+#include "flashtwin/sim/process.hpp"
 #include "flashtwin/sim/views.hpp"
 
 namespace flashtwin::pipeline {
@@ -130,34 +131,37 @@ Image residual_plot(const ReportInputs& in) {
     roots.y.push_back(NAN);
   }
   spec.series.push_back(std::move(roots));
+  // Maps of the material after grinding (ground truth): remaining flash by height above the
+  // nominal surface, and the removed body.
+  const std::vector<Vec3> residual = sim::remaining_flash_points(*ex.grid);
+  const std::vector<Vec3> gouge = sim::voxel_points(*ex.grid, sim::VoxelLabel::kGouge);
   const double bins[3] = {0.1e-3, 0.2e-3, 1e300};
   const char* labels[3] = {"flash left <= 0.1 mm high", "0.1-0.2 mm", "> 0.2 mm"};
   const Rgb colors[3] = {{240, 200, 40}, {255, 127, 14}, {214, 39, 40}};
-  const std::size_t n = ex.residual_points_C.size();
-  const std::size_t stride = std::max<std::size_t>(1, n / 60000);
+  Series bin[3];
   for (int b = 0; b < 3; ++b) {
-    Series s;
-    s.points = true;
-    s.size = 2;
-    s.color = colors[b];
-    s.label = labels[b];
-    for (std::size_t i = 0; i < n; i += stride) {
-      const double h = ex.residual_heights[i];
-      if (h > bins[b] || (b > 0 && h <= bins[b - 1])) continue;
-      s.x.push_back(ex.residual_points_C[i].x() * 1e3);
-      s.y.push_back(ex.residual_points_C[i].y() * 1e3);
-    }
-    spec.series.push_back(std::move(s));
+    bin[b].points = true;
+    bin[b].size = 2;
+    bin[b].color = colors[b];
+    bin[b].label = labels[b];
   }
+  const std::size_t stride = std::max<std::size_t>(1, residual.size() / 60000);
+  for (std::size_t i = 0; i < residual.size(); i += stride) {
+    const double h = ex.grid->nominal().closest(residual[i]).distance;
+    const int b = h <= bins[0] ? 0 : (h <= bins[1] ? 1 : 2);
+    bin[b].x.push_back(residual[i].x() * 1e3);
+    bin[b].y.push_back(residual[i].y() * 1e3);
+  }
+  for (auto& b : bin) spec.series.push_back(std::move(b));
   Series g;
   g.points = true;
   g.size = 2;
   g.color = {148, 103, 189};
   g.label = "gouge (body removed)";
-  const std::size_t gs = std::max<std::size_t>(1, ex.gouge_points_C.size() / 30000);
-  for (std::size_t i = 0; i < ex.gouge_points_C.size(); i += gs) {
-    g.x.push_back(ex.gouge_points_C[i].x() * 1e3);
-    g.y.push_back(ex.gouge_points_C[i].y() * 1e3);
+  const std::size_t gs = std::max<std::size_t>(1, gouge.size() / 30000);
+  for (std::size_t i = 0; i < gouge.size(); i += gs) {
+    g.x.push_back(gouge[i].x() * 1e3);
+    g.y.push_back(gouge[i].y() * 1e3);
   }
   spec.series.push_back(std::move(g));
   if (!ex.rescan_flash_C.empty()) {

@@ -21,9 +21,6 @@
 #include "flashtwin/pipeline/execution.hpp"
 #include "flashtwin/pipeline/report.hpp"
 #include "flashtwin/sim/cell.hpp"
-#include "flashtwin/sim/executor.hpp"
-#include "flashtwin/sim/mujoco_handles.hpp"
-#include "flashtwin/sim/process.hpp"
 #include "flashtwin/sim/scan_cell.hpp"
 
 namespace flashtwin::pipeline {
@@ -38,8 +35,6 @@ double seconds_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
-// JSON has no inf/NaN: such values become null.
-json number(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
 
 
 // Runs without an output folder (sweeps, several threads) each get their own temporary cell.
@@ -53,6 +48,8 @@ void progress(const RunOptions& o, const std::string& stage, double f) {
 }
 
 }  // namespace
+
+json finite_or_null(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
 
 void write_paths(const std::string& dir, const perception::DetectionResult& det) {
   ensure_directory(dir);
@@ -259,11 +256,11 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     const auto ps = score_path(extracted, truth);
     m["path.count"] = det.paths.size();
     m["path.true_count"] = truth.size();
-    m["path.mean_mm"] = number(ps.mean * 1000);
-    m["path.rmse_mm"] = number(ps.rmse * 1000);
-    m["path.max_mm"] = number(ps.max * 1000);
+    m["path.mean_mm"] = finite_or_null(ps.mean * 1000);
+    m["path.rmse_mm"] = finite_or_null(ps.rmse * 1000);
+    m["path.max_mm"] = finite_or_null(ps.max * 1000);
     m["path.coverage"] = ps.coverage;
-    m["path.spurious_max_mm"] = number(ps.spurious_max * 1000);
+    m["path.spurious_max_mm"] = finite_or_null(ps.spurious_max * 1000);
     m["path.length_m"] = ps.path_length;
     m["path.true_length_m"] = ps.true_length;
     if (write) write_paths(dir.string(), det);
@@ -287,7 +284,6 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     int planned = 0, failed = 0, skipped = 0;
     std::string first_failure;
     json plans = json::array();
-    planned_paths.clear();
     for (std::size_t k = 0; k < det.paths.size(); ++k) {
       const auto& p = det.paths[k];
       planner::GrindPath gp;
@@ -320,8 +316,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
           planner::ProgramParams pp;
           pp.name = "flashtwin_path_" + std::to_string(k);
           try {
-            planner::write_program(planner::export_program(sc.robot, g.trajectory, pp),
-                                   (fs::path(pd) / (pp.name + ".src")).string());
+            planner::export_program_file(sc.robot, g.trajectory, pp, pd);
           } catch (const ArgumentError& e) {
             spdlog::warn("path {}: no KRL program: {}", k, e.what());
           }
@@ -344,7 +339,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     m["trajectory.paths_skipped_tool_too_large"] = skipped;
     m["trajectory.max_joint_velocity_ratio"] = vmax;
     m["trajectory.max_joint_accel_ratio"] = amax;
-    m["trajectory.min_manipulability"] = number(planned ? manip : NAN);
+    m["trajectory.min_manipulability"] = finite_or_null(planned ? manip : NAN);
     m["trajectory.total_time_s"] = total_time;
     m["trajectory.cut_length_m"] = length;
     if (!first_failure.empty()) m["trajectory.first_failure"] = first_failure;
@@ -370,8 +365,9 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
       for (const auto& p : planned_paths)
         duration += p.second.total_time + sc.execution.exec.settle_time;
       video = std::make_unique<VideoRecorder>(opt.video, duration);
-      hook = [&video](const mjModel* mm, mjData* d, double t, const sim::MaterialGrid& grid,
-                      std::size_t) { video->on_step(mm, d, t, grid); };
+      hook = [&video](const mjModel* mm, mjData* d, double t, const sim::MaterialGrid& grid) {
+        video->on_step(mm, d, t, grid);
+      };
     }
     exec_summary = execute_plans(sc, ss, planned_paths, m, hook);
     if (video) {

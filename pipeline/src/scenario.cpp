@@ -153,15 +153,20 @@ YAML::Node apply_overrides(const std::string& path, const std::vector<std::strin
       start = dot + 1;
     }
     // Walk with fresh handles (YAML::Node assignment would rebind, not copy).
+    const auto index_of = [&](const std::string& part, std::size_t size) {
+      if (part.empty() || part.find_first_not_of("0123456789") != std::string::npos ||
+          part.size() > 9 || std::stoul(part) >= size)
+        throw ConfigError("--set " + o + ": expected a list index below " + std::to_string(size) +
+                          ", got '" + part + "'");
+      return static_cast<std::size_t>(std::stoul(part));
+    };
     std::vector<YAML::Node> chain{doc};
     for (std::size_t i = 0; i + 1 < parts.size(); ++i) {
       YAML::Node cur = chain.back();
       const std::string& p = parts[i];
       if (p.empty()) throw ConfigError("--set " + o + ": empty key part");
       if (cur.IsSequence()) {
-        const std::size_t idx = std::stoul(p);
-        if (idx >= cur.size()) throw ConfigError("--set " + o + ": index " + p + " out of range");
-        chain.push_back(cur[idx]);
+        chain.push_back(cur[index_of(p, cur.size())]);
       } else if (cur.IsMap() || cur.IsNull()) {
         if (!cur[p] || cur[p].IsNull()) cur[p] = YAML::Node(YAML::NodeType::Map);
         chain.push_back(cur[p]);
@@ -172,9 +177,7 @@ YAML::Node apply_overrides(const std::string& path, const std::vector<std::strin
     YAML::Node last = chain.back();
     if (last.IsScalar()) throw ConfigError("--set " + o + ": the parent of the key is a scalar");
     if (last.IsSequence()) {
-      const std::size_t idx = std::stoul(parts.back());
-      if (idx >= last.size()) throw ConfigError("--set " + o + ": index out of range");
-      last[idx] = value;
+      last[index_of(parts.back(), last.size())] = value;
     } else {
       last[parts.back()] = value;
     }

@@ -46,14 +46,15 @@ void VideoRecorder::on_step(const mjModel* m, mjData* d, double t, const sim::Ma
     const double step = std::max(1.0, static_cast<double>(all.size()) / std::max(1, opt_.flash_points));
     for (double k = 0; k < static_cast<double>(all.size()); k += step)
       flash_sample_C_.push_back(all[static_cast<std::size_t>(k)]);
-  }
-  const int body = mj_name2id(m, mjOBJ_BODY, "casting");
-  if (body >= 0) {
-    Mat3 R;
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 3; ++c) R(r, c) = d->xmat[9 * body + 3 * r + c];
-    X_WC_.linear() = R;
-    X_WC_.translation() = Vec3(d->xpos[3 * body], d->xpos[3 * body + 1], d->xpos[3 * body + 2]);
+    // The casting is fixed in the cell: its pose is read once.
+    const int body = mj_name2id(m, mjOBJ_BODY, "casting");
+    if (body >= 0) {
+      Mat3 R;
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) R(r, c) = d->xmat[9 * body + 3 * r + c];
+      X_WC_.linear() = R;
+      X_WC_.translation() = Vec3(d->xpos[3 * body], d->xpos[3 * body + 1], d->xpos[3 * body + 2]);
+    }
   }
   sim::PointOverlay overlay;
   overlay.radius = opt_.point_radius;

@@ -415,6 +415,17 @@ void write_program(const RobotProgram& program, const std::string& path) {
   if (!f) throw IoError(path + ": expected to write the program, got a write error");
 }
 
+std::string program_extension(ProgramDialect dialect) {
+  return dialect == ProgramDialect::kKrl ? ".src" : ".script";
+}
+
+std::string export_program_file(const RobotModel& robot, const JointTrajectory& trajectory,
+                                const ProgramParams& params, const std::string& dir) {
+  const std::string path = dir + "/" + params.name + program_extension(params.dialect);
+  write_program(export_program(robot, trajectory, params), path);
+  return path;
+}
+
 // ---------------------------------------------------------------------------------------------
 // Parsing
 

@@ -58,6 +58,12 @@ TEST(Scenario, OverridesSetKeysAndUnknownKeysAreStillReported) {
   EXPECT_THROW(load_scenario(path, {"process.voxel_size=abc"}), ConfigError);  // not a number
   EXPECT_THROW(load_scenario(path, {"noequals"}), ConfigError);
   EXPECT_THROW(load_scenario(path, {"name.x=1"}), ConfigError);  // below a scalar
+  // List elements by index (the housing scenario lists its scanner views).
+  const std::string housing = ftest::source_path("scenarios/housing.yaml");
+  EXPECT_NO_THROW(load_scenario(housing, {"scanner.views.0.standoff=0.31"}));
+  EXPECT_THROW(load_scenario(housing, {"scanner.views.0.standoff=99"}), ConfigError);
+  EXPECT_THROW(load_scenario(housing, {"scanner.views.9.standoff=0.3"}), ConfigError);
+  EXPECT_THROW(load_scenario(housing, {"scanner.views.x.standoff=0.3"}), ConfigError);
   Scenario s2 = base;
   set_seed(s2, 42);
   EXPECT_EQ(s2.seed, 42u);

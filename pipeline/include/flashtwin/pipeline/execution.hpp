@@ -5,6 +5,7 @@
 // Writes the execution.*, force.*, removal.*, sim.* and rescan.* metrics.
 #include <cstddef>
 #include <functional>
+#include <memory>
 #include <string>
 #include <utility>
 #include <vector>
@@ -31,26 +32,23 @@ struct ExecutionSummary {
   std::string failure;        ///< one line, when failed
   // Decimated logs of all paths back to back (time runs on over the paths).
   std::vector<double> t;                  ///< [s] simulated time
-  std::vector<int> path;                  ///< detected-path index of the row
   std::vector<double> normal_force;       ///< [N]
   std::vector<double> tangential_force;   ///< [N]
   std::vector<double> tracking_error;     ///< [m] |executed − planned TCP| (position)
   std::vector<double> sensor_force;       ///< [N] |flange F/T force| (0 without the sensor)
   double target_force = 0;                ///< [N]
   sim::ResidualReport residual;
-  std::vector<Vec3> residual_points_C;    ///< remaining flash voxel centres ({C}) [m]
-  std::vector<double> residual_heights;   ///< their distance to the nominal surface [m]
-  std::vector<Vec3> gouge_points_C;       ///< removed body voxel centres [m]
+  /// The material after grinding (residual and gouge maps are read from it; null when
+  /// execution did not run).
+  std::shared_ptr<const sim::MaterialGrid> grid;
   TriangleMesh remaining_flash_C;         ///< surface of the remaining flash ({C})
-  // Re-scan.
-  bool rescanned = false;
   std::vector<Vec3> rescan_flash_C;       ///< re-scan points perception calls flash ({C}, est.)
 };
 
 /// Optional per-frame hook for the video: called with the MuJoCo model/data of the running
 /// execution, the simulated time since the run's start and the material grid.
 using FrameHook = std::function<void(const mjModel* model, mjData* data, double t,
-                                     const sim::MaterialGrid& grid, std::size_t path)>;
+                                     const sim::MaterialGrid& grid)>;
 
 /// Runs the planned paths (in order, each from rest at its first sample: moves between paths
 /// are not simulated), fills the metrics and returns the logs.

@@ -65,6 +65,9 @@ RunResult run_scenario(const Scenario& scenario, const RunOptions& options);
 /// edges) next to each other: DIR/paths.json, DIR/paths.ply.
 void write_paths(const std::string& dir, const perception::DetectionResult& detection);
 
+/// A metric value for JSON, which has no inf/NaN: those become null.
+nlohmann::ordered_json finite_or_null(double v);
+
 /// Checks the scenario's `expect:` bounds against metrics; returns one line per violation.
 std::vector<std::string> check_expectations(const Scenario& scenario,
                                             const nlohmann::ordered_json& metrics);

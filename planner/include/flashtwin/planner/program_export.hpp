@@ -89,6 +89,14 @@ RobotProgram export_program(const RobotModel& robot, const JointTrajectory& traj
 /// Writes program.text to `path`. @throws IoError when the file cannot be written.
 void write_program(const RobotProgram& program, const std::string& path);
 
+/// File extension of a dialect's programs: ".src" (KRL), ".script" (URScript).
+std::string program_extension(ProgramDialect dialect);
+
+/// Exports the trajectory with `params` and writes it to DIR/<params.name><extension>; returns
+/// the file's path. @throws as export_program and write_program.
+std::string export_program_file(const RobotModel& robot, const JointTrajectory& trajectory,
+                                const ProgramParams& params, const std::string& dir);
+
 /// One motion instruction read back from a program.
 struct ProgramPoint {
   bool cartesian = false;        ///< target is a pose (else joint values)
