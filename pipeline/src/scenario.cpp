@@ -304,6 +304,7 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     g.spacing = pl2.get_double("spacing", 1e-5, 0.05, g.spacing);
     g.feed = pl2.get_double("feed", 1e-4, 1.0, g.feed);
     g.approach_feed = pl2.get_double("approach_feed", 1e-4, 1.0, g.approach_feed);
+    g.plunge_feed = pl2.get_double("plunge_feed", 1e-4, 1.0, g.plunge_feed);
     g.approach_distance = pl2.get_double("approach_distance", 0, 0.5, g.approach_distance);
     g.lead = pl2.get_double("lead", -0.8, 0.8, g.lead);
     g.tilt = pl2.get_double("tilt", -0.8, 0.8, g.tilt);

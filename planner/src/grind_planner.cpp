@@ -534,6 +534,8 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
   check_param(P.feed > 0 && std::isfinite(P.feed), "feed", "> 0 [m/s]", P.feed);
   check_param(P.approach_feed > 0 && std::isfinite(P.approach_feed), "approach_feed", "> 0 [m/s]",
               P.approach_feed);
+  check_param(P.plunge_feed > 0 && std::isfinite(P.plunge_feed), "plunge_feed", "> 0 [m/s]",
+              P.plunge_feed);
   check_param(P.approach_distance >= 0 && std::isfinite(P.approach_distance), "approach_distance",
               ">= 0 [m]", P.approach_distance);
   check_param(std::abs(P.lead) < M_PI / 2, "lead", "|lead| < pi/2 [rad]", P.lead);
@@ -699,6 +701,7 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
     SampleKind kind;
     int pass;
     std::size_t first, last;
+    double feed = 0;  ///< [m/s]; 0: the kind's feed (cutting or approach)
   };
   std::vector<SegDraft> segs;
   auto cut_geo = [&](int pass, std::size_t k) {
@@ -718,13 +721,24 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
   const auto lift_steps =
       static_cast<std::size_t>(std::max(1.0, std::ceil(P.approach_distance / P.spacing - 1e-9)));
   if (P.approach_distance > 0) {
+    // The last stretch of the approach plunges the cutter through the fin (its tip crosses the
+    // fin plane at lift = tip depth): that part runs at the plunge feed, the rest in the air at
+    // the approach feed.
+    const double plunge_height = std::min(P.approach_distance, tip_depth + 0.002);
+    std::size_t split = 0;
     for (std::size_t i = 0; i < lift_steps; ++i) {
       Geo g = cut_geo(0, 0);
       g.kind = SampleKind::kApproach;
       g.lift = P.approach_distance * (1 - static_cast<double>(i) / lift_steps);
+      if (split == 0 && g.lift <= plunge_height) split = i;
       C.geo.push_back(g);
     }
-    segs.push_back({SampleKind::kApproach, 0, 0, lift_steps});
+    if (split == 0 || split + 1 >= lift_steps) {
+      segs.push_back({SampleKind::kApproach, 0, 0, lift_steps, P.plunge_feed});
+    } else {
+      segs.push_back({SampleKind::kApproach, 0, 0, split});
+      segs.push_back({SampleKind::kApproach, 0, split, lift_steps, P.plunge_feed});
+    }
   }
   // Neighbouring segments share their junction sample: the approach ends on the first cut
   // sample, a link starts on a pass's last sample and ends on the next pass's first.
@@ -847,7 +861,9 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
     g.pass = sg.pass;
     g.first_sample = sg.first;
     g.last_sample = sg.last;
-    g.feed = sg.kind == SampleKind::kCut || sg.kind == SampleKind::kLink ? P.feed : P.approach_feed;
+    g.feed = sg.feed > 0 ? sg.feed
+                         : (sg.kind == SampleKind::kCut || sg.kind == SampleKind::kLink ? P.feed
+                                                                                         : P.approach_feed);
     res.segments.push_back(g);
   }
   res.path_length = res.samples.back().s;

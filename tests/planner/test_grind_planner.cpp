@@ -133,15 +133,28 @@ TEST(GrindPlanner, LineOnVerticalWallGivesKnownToolPoses) {
   EXPECT_EQ(r.passes, 1);
   const double rad = robot.tool.radius, dtip = robot.tool.length / 2;
 
-  // Segments: approach, one pass, retract, joined at shared samples.
-  ASSERT_EQ(r.segments.size(), 3u);
+  // Segments: approach in the air, plunge through the fin, one pass, retract, joined at shared
+  // samples.
+  ASSERT_EQ(r.segments.size(), 4u);
   EXPECT_EQ(r.segments[0].kind, SampleKind::kApproach);
-  EXPECT_EQ(r.segments[1].kind, SampleKind::kCut);
-  EXPECT_EQ(r.segments[2].kind, SampleKind::kRetract);
-  EXPECT_EQ(r.segments[0].last_sample, r.segments[1].first_sample);
-  EXPECT_EQ(r.segments[1].last_sample, r.segments[2].first_sample);
-  EXPECT_EQ(r.segments[2].last_sample, r.samples.size() - 1);
-  const std::size_t c0 = r.segments[1].first_sample, c1 = r.segments[1].last_sample;
+  EXPECT_EQ(r.segments[1].kind, SampleKind::kApproach);
+  EXPECT_EQ(r.segments[2].kind, SampleKind::kCut);
+  EXPECT_EQ(r.segments[3].kind, SampleKind::kRetract);
+  EXPECT_DOUBLE_EQ(r.segments[0].feed, P.approach_feed);
+  EXPECT_DOUBLE_EQ(r.segments[1].feed, P.plunge_feed);
+  EXPECT_DOUBLE_EQ(r.segments[2].feed, P.feed);
+  for (std::size_t k = 1; k < 4; ++k)
+    EXPECT_EQ(r.segments[k - 1].last_sample, r.segments[k].first_sample) << k;
+  EXPECT_EQ(r.segments[3].last_sample, r.samples.size() - 1);
+  {
+    // The plunge starts at most tip depth + 2 mm (one sample spacing of slack) above the cut
+    // start, i.e. before the tip reaches the fin plane, and the air part stays above it.
+    const Vec3 start = r.samples[r.segments[2].first_sample].X_CT.translation();
+    const double plunge = (r.samples[r.segments[1].first_sample].X_CT.translation() - start).norm();
+    EXPECT_LE(plunge, dtip + 0.002 + 1e-12);
+    EXPECT_GT(plunge, dtip);
+  }
+  const std::size_t c0 = r.segments[2].first_sample, c1 = r.segments[2].last_sample;
   EXPECT_EQ(c1 - c0, 400u);  // 200 mm at 0.5 mm
 
   for (std::size_t i = c0; i <= c1; ++i) {
@@ -179,19 +192,23 @@ TEST(GrindPlanner, LineOnVerticalWallGivesKnownToolPoses) {
 
   // The executed TCP (FK of q(t)) stays on the planned line while cutting.
   double max_dev = 0;
-  for (std::size_t n = r.segments[1].first_step; n <= r.segments[1].last_step; ++n) {
+  for (std::size_t n = r.segments[2].first_step; n <= r.segments[2].last_step; ++n) {
     const Vec3 p = r.tcp_B[n].translation();
     max_dev = std::max(max_dev, std::hypot(p.x() - (0.7 - rad), p.z() - (-0.15 - dtip)));
   }
   EXPECT_LT(max_dev, 1e-5);
   // The feed: cutting at `feed`, approaching at `approach_feed` (both reached, never exceeded).
   double cut_max = 0, app_max = 0;
-  for (std::size_t n = r.segments[1].first_step; n <= r.segments[1].last_step; ++n)
+  for (std::size_t n = r.segments[2].first_step; n <= r.segments[2].last_step; ++n)
     cut_max = std::max(cut_max, r.trajectory.sdot[n]);
   for (std::size_t n = r.segments[0].first_step; n <= r.segments[0].last_step; ++n)
     app_max = std::max(app_max, r.trajectory.sdot[n]);
+  double plunge_max = 0;
+  for (std::size_t n = r.segments[1].first_step; n <= r.segments[1].last_step; ++n)
+    plunge_max = std::max(plunge_max, r.trajectory.sdot[n]);
   EXPECT_NEAR(cut_max, P.feed, 1e-3 * P.feed);
   EXPECT_NEAR(app_max, P.approach_feed, 1e-3 * P.approach_feed);
+  EXPECT_NEAR(plunge_max, P.plunge_feed, 1e-3 * P.plunge_feed);
   EXPECT_GT(r.total_time, 0.2 / P.feed);
 }
 
@@ -204,8 +221,8 @@ TEST(GrindPlanner, ClosedCircleAroundHole) {
   const GrindResult r = plan_grind(robot, X_BC, hole_circle(R, 72), P);
   ASSERT_TRUE(r.ok()) << r.message;
   const double rad = robot.tool.radius, dtip = robot.tool.length / 2;
-  ASSERT_EQ(r.segments.size(), 3u);
-  const std::size_t c0 = r.segments[1].first_sample, c1 = r.segments[1].last_sample;
+  ASSERT_EQ(r.segments.size(), 4u);
+  const std::size_t c0 = r.segments[2].first_sample, c1 = r.segments[2].last_sample;
   // 2πR at 0.5 mm (the interpolated loop is a hair shorter than the circle).
   EXPECT_NEAR(static_cast<double>(c1 - c0), 2 * M_PI * R / 0.0005, 1.0);
   double max_err = 0;
@@ -411,13 +428,13 @@ TEST(GrindPlanner, FinHigherThanDepthOfCutGivesPassesEndingAtTheWall) {
   EXPECT_NEAR(r.pass_offsets[1], 0.002, 1e-15);
   EXPECT_EQ(r.pass_offsets[2], 0.0);
   const double rad = robot.tool.radius;
-  // approach, cut 0, link, cut 1, link, cut 2, retract
-  ASSERT_EQ(r.segments.size(), 7u);
-  const SampleKind kinds[7] = {SampleKind::kApproach, SampleKind::kCut,  SampleKind::kLink,
-                               SampleKind::kCut,      SampleKind::kLink, SampleKind::kCut,
-                               SampleKind::kRetract};
+  // approach, plunge, cut 0, link, cut 1, link, cut 2, retract
+  ASSERT_EQ(r.segments.size(), 8u);
+  const SampleKind kinds[8] = {SampleKind::kApproach, SampleKind::kApproach, SampleKind::kCut,
+                               SampleKind::kLink,     SampleKind::kCut,      SampleKind::kLink,
+                               SampleKind::kCut,      SampleKind::kRetract};
   double prev_offset = 1;
-  for (int k = 0; k < 7; ++k) {
+  for (int k = 0; k < 8; ++k) {
     const GrindSegment& g = r.segments[static_cast<std::size_t>(k)];
     EXPECT_EQ(g.kind, kinds[k]);
     if (k > 0) {
@@ -438,9 +455,9 @@ TEST(GrindPlanner, FinHigherThanDepthOfCutGivesPassesEndingAtTheWall) {
     const double y1 = r.samples[g.last_sample].X_CT.translation().y();
     EXPECT_NEAR(g.pass == 1 ? y0 - y1 : y1 - y0, 0.1, 1e-9);
   }
-  EXPECT_NEAR(-r.samples[r.segments[5].last_sample].X_CT.translation().x(), rad, 1e-12);
+  EXPECT_NEAR(-r.samples[r.segments[6].last_sample].X_CT.translation().x(), rad, 1e-12);
   // Links: radial step-in at the path end, cutting feed.
-  for (int k : {2, 4}) {
+  for (int k : {3, 5}) {
     const GrindSegment& g = r.segments[static_cast<std::size_t>(k)];
     EXPECT_EQ(g.feed, P.feed);
     const Vec3 d =

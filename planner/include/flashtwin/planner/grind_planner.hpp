@@ -49,6 +49,10 @@ struct GrindParams {
                                 ///< points are thinned to at least this spacing first
   double feed = 0.01;           ///< cutting feed along the tool path (passes and pass links) [m/s]
   double approach_feed = 0.02;  ///< feed of the approach and retract moves [m/s]
+  /// Feed of the approach's last stretch, where the cutter plunges through the fin to its
+  /// working depth (tip depth + 2 mm above the fin plane down to it) [m/s]: removal there is a
+  /// whole cutter cross-section of fin per millimetre.
+  double plunge_feed = 0.003;
   double approach_distance = 0.03;  ///< approach/retract height along the fin normal [m]
   double lead = 0;                  ///< lead angle (shank toward the travel direction) [rad]
   double tilt = 0;                  ///< tilt angle (shank away from the wall) [rad]
@@ -75,7 +79,8 @@ struct GrindParams {
 
 /// What a sample belongs to.
 enum class SampleKind {
-  kApproach,  ///< straight move down along the fin normal to the start of the first pass
+  kApproach,  ///< straight move down along the fin normal to the start of the first pass (the
+              ///< last stretch, through the fin, as its own segment at the plunge feed)
   kCut,       ///< a pass along the path
   kLink,      ///< radial step-in between passes at the same path point (cutting feed); open
               ///< paths alternate direction pass by pass, closed ones restart at the seam
