@@ -52,6 +52,8 @@ void check_params(const DetectionParams& p) {
   if (!(p.support_distance > 0)) bad("support_distance", "> 0 m", p.support_distance);
   if (!(p.alpha >= 0)) bad("alpha", ">= 0 m", p.alpha);
   if (!(p.inner_band >= 0)) bad("inner_band", ">= 0 m", p.inner_band);
+  if (!(p.hidden_root_band >= 0) || !std::isfinite(p.hidden_root_band))
+    bad("hidden_root_band", ">= 0 m", p.hidden_root_band);
   if (!(p.path_voxel > 0)) bad("path_voxel", "> 0 m", p.path_voxel);
   if (!(p.gap >= 0)) bad("gap", ">= 0 m", p.gap);
   if (p.smoothing < 0) bad("smoothing", ">= 0", p.smoothing);
@@ -454,6 +456,9 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
   const double alpha = P.alpha > 0 ? P.alpha : 1.5 * spacing;
   const double gap = P.gap > 0 ? P.gap : std::max(4 * P.path_voxel, 4 * spacing);
   const double inner_limit = res.threshold + band;
+  const double hidden_limit = std::max(inner_limit, res.threshold + P.hidden_root_band);
+  // A snapped edge point this close to a seen root point adds nothing.
+  const double hidden_cover = std::max(1e-3, 3 * spacing);
 
   // Per-region data kept between the passes below.
   struct RegionWork {
@@ -515,24 +520,60 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
 
     // Alpha-shape boundary. Only the points near the casting can be on the inner boundary,
     // so the rolling circle is tried there (the outer boundary is not needed for the path).
+    // Points up to hidden_limit off the CAD are tried too: where the root itself is hidden
+    // from every view (a wall above the fin blocks the triangulation camera), the fin's edge
+    // nearest to the casting stands for it.
     std::vector<bool> test(pts.size());
-    for (std::size_t i = 0; i < pts.size(); ++i) test[i] = height[i] < inner_limit;
+    for (std::size_t i = 0; i < pts.size(); ++i) test[i] = height[i] < hidden_limit;
     const auto bnd = alpha_boundary(uv, alpha, test);
     std::vector<Vec3> inner;
     std::vector<Vec3> inner_n;
+    std::vector<std::size_t> hidden;  // boundary points beyond the inner band
+    // A root lies on a wall the fin stands out of: a snap onto a face parallel to the fin
+    // (within 30°) is the face the fin lies on or runs along, not its root.
+    const auto on_wall = [&](int t) {
+      return std::abs(cad.triangle_normal(static_cast<std::size_t>(t)).dot(reg.normal_C)) <
+             std::cos(M_PI / 6);
+    };
     for (std::size_t i = 0; i < pts.size(); ++i) {
       if (!bnd[i]) continue;
       ++reg.boundary_points;
+      if (height[i] >= inner_limit) {
+        hidden.push_back(i);
+        continue;
+      }
       // Snap onto the CAD surface: the path must not carry the scanner noise.
       const auto cp = cad_C.closest(pts[i], inner_limit * 1.5);
-      if (cp.triangle < 0) continue;
+      if (cp.triangle < 0 || !on_wall(cp.triangle)) continue;
       ++reg.inner_points;
       inner.push_back(cp.point);
       inner_n.push_back(cad.triangle_normal(static_cast<std::size_t>(cp.triangle)));
     }
+    // Hidden stretches of root: boundary points of the wider band whose snap lands away from
+    // every root point seen (so they fill gaps and never compete with the seen root).
+    {
+      const std::size_t seen = inner.size();
+      const double r2 = hidden_cover * hidden_cover;
+      for (std::size_t i : hidden) {
+        const auto cp = cad_C.closest(pts[i], hidden_limit * 1.5);
+        if (cp.triangle < 0 || !on_wall(cp.triangle)) continue;
+        bool covered = false;
+        for (std::size_t j = 0; j < seen && !covered; ++j)
+          covered = (inner[j] - cp.point).squaredNorm() < r2;
+        if (covered) continue;
+        ++reg.inner_points;
+        inner.push_back(cp.point);
+        inner_n.push_back(cad.triangle_normal(static_cast<std::size_t>(cp.triangle)));
+      }
+    }
     spdlog::debug("detect: region of {} points, {} near the CAD, {} boundary, {} inner", cl.size(),
                   touching, reg.boundary_points, inner.size());
-    if (inner.size() < 3) continue;
+    if (inner.size() < 3) {
+      // Flash (it stands off the casting and touches it) whose root is nowhere on a wall seen:
+      // labelled, but it gives no grinding line.
+      for (auto idx : reg.points) res.labels[idx] = kDetectFlash;
+      continue;
+    }
 
     // The scanner sees the fin's upper face; the root lies on its mid-plane. Where the fin's
     // edge (its outer half) shows its thickness, the mid-height there, measured along the

@@ -290,6 +290,7 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
           static_cast<int>(d.get_int("min_region_points", 3, 1000000, dp.min_region_points));
       dp.alpha = d.get_double("alpha", 0, 0.05, dp.alpha);
       dp.inner_band = d.get_double("inner_band", 0, 0.05, dp.inner_band);
+      dp.hidden_root_band = d.get_double("hidden_root_band", 0, 0.05, dp.hidden_root_band);
       dp.path_voxel = d.get_double("path_voxel", 1e-5, 0.05, dp.path_voxel);
       dp.gap = d.get_double("gap", 0, 0.5, dp.gap);
       dp.min_path_length = d.get_double("min_path_length", 0, 1, dp.min_path_length);

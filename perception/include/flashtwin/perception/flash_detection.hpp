@@ -36,6 +36,10 @@ struct DetectionParams {
                                     ///< spacing across lines
   double inner_band = 0;            ///< [m] boundary points within threshold + this of the
                                     ///< CAD are inner (on the casting); 0: 1.5 × spacing across lines
+  /// [m] where no root point is seen (the root hidden from every view), boundary points within
+  /// threshold + this of the CAD stand for it, snapped; only those landing ≥ max(1 mm, 3 ×
+  /// spacing) from every seen root point. 0: off.
+  double hidden_root_band = 2e-3;
   double path_voxel = 0.4e-3;       ///< [m] improved voxel grid over the snapped path points
   double gap = 0;                   ///< [m] polylines split at gaps longer than this; 0:
                                     ///< max(4 × path_voxel, 4 × spacing across)
