@@ -127,6 +127,43 @@ TEST(FlashDetection, StraightFinPathWithinFiftyMicrons) {
   EXPECT_LT((path.points_C.back() - path.points_C.front()).x(), 0);
 }
 
+TEST(FlashDetection, HiddenRootStretchIsBridgedByTheFinEdgeNearestTheWall) {
+  // The straight fin, but over x in [-10, 10] mm no point within 1.5 mm of the wall comes back
+  // (a wall above the fin hid the root from the triangulation camera there).
+  const Part part = straight_fin_part();
+  const PointCloud full = sample(part, 0.0001, 0.03e-3, 11);
+  PointCloud scan_C;
+  for (const auto& p : full.points)
+    if (!(std::abs(p.x()) < 0.01f && p.y() > 0.03f && p.y() < 0.0315f)) scan_C.points.push_back(p);
+  const MeshBvh cad(part.cad());
+  const Vec3 a(-0.04, 0.03, 0.015), b(0.04, 0.03, 0.015);
+  // How much of the root, sampled every 0.5 mm, has a path point within 0.5 mm.
+  const auto covered = [&](const DetectionResult& r) {
+    int hit = 0, n = 0;
+    for (double x = -0.038; x <= 0.038; x += 0.0005, ++n) {
+      const Vec3 q(x, 0.03, 0.015);
+      bool near = false;
+      for (const auto& path : r.paths)
+        for (const auto& p : path.points_C) near = near || (p - q).norm() < 0.5e-3;
+      hit += near;
+    }
+    return static_cast<double>(hit) / n;
+  };
+  DetectionParams off;
+  off.hidden_root_band = 0;
+  const auto r_off = detect_flash(to_scanner(scan_C), cad, kX_CM, off);
+  const auto r_on = detect_flash(to_scanner(scan_C), cad, kX_CM);
+  ASSERT_TRUE(r_on.ran);
+  // Without the fallback the 20 mm stretch is missing; with it the root is covered through.
+  EXPECT_LT(covered(r_off), 0.8);
+  EXPECT_GT(covered(r_on), 0.95);
+  // The bridged points are snapped onto the wall: still on the root line.
+  double worst = 0;
+  for (const auto& path : r_on.paths)
+    for (const auto& p : path.points_C) worst = std::max(worst, distance_to_segment(p, a, b));
+  EXPECT_LT(worst, 0.2e-3);
+}
+
 TEST(FlashDetection, HoleFlashIsOneClosedLoop) {
   // A plate with a 20 x 20 mm square hole; a 1 mm ring fin sticks 2 mm into the hole.
   Part part;
