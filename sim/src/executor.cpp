@@ -371,6 +371,7 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
   const std::size_t total_steps =
       traj_steps + static_cast<std::size_t>(std::llround(params.settle_time / h));
   std::vector<mjtNum> jacp(3 * m->nv), jacr(3 * m->nv), x3(3 * m->nv);
+  Vector6 grind_wrench_W = Vector6::Zero();  // last step's grinding force and torque (COM), {W}
 
   auto compare_samples = [&](double t, const Pose& X_WT, double horizon) {
     while (next_sample < n_samples && trajectory.t[next_sample] <= t + horizon) {
@@ -506,16 +507,16 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
       mj_inverse(m, dff);
       for (int i = 0; i < kNumJoints; ++i) tau_ff[i] = dff->qfrc_inverse[c.dadr[i]];
     }
-    if (params.load_compensation) {
-      // Deflection compensation: cancel the process wrench of the previous step (what the
-      // flange F/T sensor measures) through the Jacobian at the tool's centre of mass.
-      const mjtNum* xf = d->xfrc_applied + 6 * c.tool;
-      if (xf[0] != 0 || xf[1] != 0 || xf[2] != 0 || xf[3] != 0 || xf[4] != 0 || xf[5] != 0) {
-        mj_jacBodyCom(m, d, jacp.data(), jacr.data(), c.tool);
-        for (int i = 0; i < kNumJoints; ++i)
-          for (int k = 0; k < 3; ++k)
-            tau_ff[i] -= jacp[k * m->nv + c.dadr[i]] * xf[k] + jacr[k * m->nv + c.dadr[i]] * xf[3 + k];
-      }
+    if (params.load_compensation && grind_wrench_W.squaredNorm() > 0) {
+      // Deflection compensation: cancel the grinding wrench of the previous step through the
+      // Jacobian at the tool's centre of mass. Not the contact penalty: that is the body's
+      // reaction to the tool pressing into it, which a controller holding the plan would only
+      // push harder against (the penalty is far softer than steel).
+      mj_jacBodyCom(m, d, jacp.data(), jacr.data(), c.tool);
+      for (int i = 0; i < kNumJoints; ++i)
+        for (int k = 0; k < 3; ++k)
+          tau_ff[i] -= jacp[k * m->nv + c.dadr[i]] * grind_wrench_W[k] +
+                       jacr[k * m->nv + c.dadr[i]] * grind_wrench_W[3 + k];
     }
     for (int i = 0; i < kNumJoints; ++i) d->ctrl[c.act[i]] = r.q[i] + tau_ff[i] / c.kp[i];
 
@@ -554,6 +555,13 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     }
     F_W = speed * G_W + pen_F_W;
     tau_W = R_WC * (speed * rate.torque + pen_tau_C);
+    {
+      // The grinding part alone (rate wrench), about the tool's COM, for the compensation.
+      const Vec3 f = speed * G_W;
+      const Vec3 t = R_WC * (speed * rate.torque) +
+                     (X_WT.translation() - vec3_at(d->xipos + 3 * c.tool)).cross(f);
+      grind_wrench_W << f, t;
+    }
     normal_force = speed * rate.normal + penalty;
     tangential_force = speed * rate.tangential;
     {

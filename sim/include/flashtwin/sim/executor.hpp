@@ -68,9 +68,11 @@ struct ExecParams {
   double timestep = 0;       ///< [s] MuJoCo step; 0 = the model's. Must be ≤ 0.001 (≥ 1 kHz)
   double settle_time = 0.2;  ///< [s] the last sample is held this long after the trajectory
   bool feedforward = true;   ///< inverse-dynamics feed-forward torque at the reference
-  /// Deflection compensation, as robots with a flange F/T sensor do: the process wrench of the
+  /// Deflection compensation, as robots with a flange F/T sensor do: the grinding wrench of the
   /// previous step is cancelled through Jᵀ in the feed-forward torque (still bounded by the
   /// actuators' torque limits), so the servos hold the planned pose under the grinding load.
+  /// The contact penalty (the body pushing back where the tool presses into it) is not
+  /// compensated: the servos yield to it.
   bool load_compensation = true;
   ForceControlParams force_control;
   int log_decimation = 10;  ///< one log row every this many steps (≥ 1), plus the last step
