@@ -651,7 +651,12 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       ic.normals.push_back(wk.inner_n[i].cast<float>());
     }
     // Improved voxel grid: one original point per voxel, the one nearest its centroid.
-    const PointCloud thin = voxel_downsample_nearest(ic, P.path_voxel);
+    const auto tv = Clock::now();
+    const PointCloud thin = P.path_voxel_nearest ? voxel_downsample_nearest(ic, P.path_voxel)
+                                                 : voxel_downsample(ic, P.path_voxel);
+    res.path_voxel_time_s += std::chrono::duration<double>(Clock::now() - tv).count();
+    res.path_points_before += ic.size();
+    res.path_points_after += thin.size();
     std::vector<Vec3> tp(thin.size());
     for (std::size_t i = 0; i < thin.size(); ++i) tp[i] = thin.points[i].cast<double>();
     // The boundary is a band a few points wide: pull each point onto the line fitted to its
@@ -680,7 +685,8 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
     {
       PointCloud again;
       for (const auto& q : tp) again.points.push_back(q.cast<float>());
-      const PointCloud t2 = voxel_downsample_nearest(again, P.path_voxel);
+      const PointCloud t2 = P.path_voxel_nearest ? voxel_downsample_nearest(again, P.path_voxel)
+                                                 : voxel_downsample(again, P.path_voxel);
       tp.resize(t2.size());
       for (std::size_t i = 0; i < t2.size(); ++i) tp[i] = t2.points[i].cast<double>();
     }

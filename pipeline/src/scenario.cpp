@@ -292,6 +292,10 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
       dp.inner_band = d.get_double("inner_band", 0, 0.05, dp.inner_band);
       dp.hidden_root_band = d.get_double("hidden_root_band", 0, 0.05, dp.hidden_root_band);
       dp.path_voxel = d.get_double("path_voxel", 1e-5, 0.05, dp.path_voxel);
+      const std::string vm = d.get_string("path_voxel_method", "nearest");
+      if (vm != "nearest" && vm != "centroid")
+        d.at("path_voxel_method").fail("expected nearest or centroid, got '" + vm + "'");
+      dp.path_voxel_nearest = vm == "nearest";
       dp.gap = d.get_double("gap", 0, 0.5, dp.gap);
       dp.min_path_length = d.get_double("min_path_length", 0, 1, dp.min_path_length);
       dp.smoothing = static_cast<int>(d.get_int("smoothing", 0, 100, dp.smoothing));

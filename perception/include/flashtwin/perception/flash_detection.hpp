@@ -41,6 +41,9 @@ struct DetectionParams {
   /// spacing) from every seen root point. 0: off.
   double hidden_root_band = 2e-3;
   double path_voxel = 0.4e-3;       ///< [m] improved voxel grid over the snapped path points
+  /// true: the thesis's improved voxel grid (per voxel the original point nearest the centroid);
+  /// false: the plain voxel grid (the centroid itself), kept for the §3.4 comparison.
+  bool path_voxel_nearest = true;
   double gap = 0;                   ///< [m] polylines split at gaps longer than this; 0:
                                     ///< max(4 × path_voxel, 4 × spacing across)
   double min_path_length = 2e-3;    ///< [m] shorter pieces of grinding line are dropped
@@ -86,6 +89,9 @@ struct DetectionResult {
   std::size_t cropped_points = 0;   ///< points inside the grown CAD box
   std::size_t candidate_points = 0; ///< off the CAD by more than the threshold
   std::size_t support_points = 0;   ///< candidates removed as support planes
+  std::size_t path_points_before = 0;  ///< inner-boundary points entering the voxel grid
+  std::size_t path_points_after = 0;   ///< points it kept (first pass, all regions)
+  double path_voxel_time_s = 0;        ///< wall time of that first pass, all regions
   double time_s = 0;                ///< wall time
 };
 
