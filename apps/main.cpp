@@ -875,7 +875,7 @@ int main(int argc, char** argv) {
               "at a known pose in the robot base: trajectory.csv, plots, optional robot program; "
               "exit 1 when a path cannot be planned");
   std::string plan_paths, export_lang;
-  double plan_feed = 0.01, plan_lead = 0, plan_tilt = 0;
+  double plan_feed = ft::planner::GrindParams{}.feed, plan_lead = 0, plan_tilt = 0;
   plan->add_option("--path", plan_paths, "Paths JSON ({C}, metres) as `flashtwin detect` writes it")
       ->required();
   plan->add_option("--cad", cad_path, "CAD model of the casting (STL/OBJ/PLY, metres, frame {C})")

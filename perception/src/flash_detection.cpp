@@ -83,6 +83,67 @@ Plane fit_plane(const std::vector<Vec3>& pts) {
 
 }  // namespace
 
+// A hole's flash is a ring, so its root is a closed loop even where part of it was not seen.
+// An open path that runs more than half way round a circle (in the plane across the fin
+// normal `w`, fitted within `fit_tol`) whose CAD normals point at the circle's centre (a hole
+// wall, not an outer contour) is closed along that circle, at steps of `step`, where the CAD
+// wall is there (every added point within `fit_tol` of the surface). Returns the points added.
+int close_hole_arc(FlashPath& path, const MeshBvh& cad_C, const Vec3& w, double step,
+                   double fit_tol) {
+  const auto& P = path.points_C;
+  const std::size_t n = P.size();
+  if (path.closed || n < 8) return 0;
+  const Vec3 u = w.unitOrthogonal(), v = w.cross(u);
+  // Algebraic circle fit (Kåsa) in (u, v): x² + y² + D x + E y + F = 0.
+  Eigen::MatrixXd A(n, 3);
+  Eigen::VectorXd b(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const double x = u.dot(P[i]), y = v.dot(P[i]);
+    A(i, 0) = x;
+    A(i, 1) = y;
+    A(i, 2) = 1;
+    b(i) = -(x * x + y * y);
+  }
+  const Eigen::Vector3d s = A.colPivHouseholderQr().solve(b);
+  const double cx = -s(0) / 2, cy = -s(1) / 2, r2 = cx * cx + cy * cy - s(2);
+  if (!(r2 > 0)) return 0;
+  const double r = std::sqrt(r2);
+  if (r < 1e-3 || r > 0.1) return 0;
+  double res2 = 0, facing = 0, swept = 0, h0 = 0, h1 = 0;
+  std::vector<double> ang(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const double x = u.dot(P[i]) - cx, y = v.dot(P[i]) - cy;
+    const double d = std::hypot(x, y) - r;
+    res2 += d * d;
+    ang[i] = std::atan2(y, x);
+    const Vec3 to_centre = -(x * u + y * v).normalized();
+    facing += path.normals_C[i].dot(to_centre);
+    if (i > 0) swept += std::remainder(ang[i] - ang[i - 1], 2 * M_PI);
+  }
+  h0 = w.dot(P.front());
+  h1 = w.dot(P.back());
+  if (std::sqrt(res2 / n) > fit_tol || facing / n < 0.8 || std::abs(swept) < M_PI ||
+      std::abs(swept) > 2 * M_PI)
+    return 0;
+  const double missing = 2 * M_PI - std::abs(swept);
+  const int k = static_cast<int>(std::floor(missing * r / step));
+  const double dir = swept > 0 ? 1 : -1;
+  std::vector<Vec3> add_p, add_n;
+  for (int j = 1; j < k; ++j) {
+    const double f = static_cast<double>(j) / k;
+    const double a = ang.back() + dir * missing * f;
+    const Vec3 q = (cx + r * std::cos(a)) * u + (cy + r * std::sin(a)) * v + (h1 + f * (h0 - h1)) * w;
+    const auto cp = cad_C.closest(q, 4 * fit_tol);
+    if (cp.triangle < 0 || cp.distance > fit_tol) return 0;
+    add_p.push_back(q);
+    add_n.push_back(cad_C.mesh().triangle_normal(static_cast<std::size_t>(cp.triangle)));
+  }
+  path.points_C.insert(path.points_C.end(), add_p.begin(), add_p.end());
+  path.normals_C.insert(path.normals_C.end(), add_n.begin(), add_n.end());
+  path.closed = true;
+  return static_cast<int>(add_p.size());
+}
+
 std::vector<bool> alpha_boundary(const std::vector<Eigen::Vector2d>& uv, double alpha,
                                  const std::vector<bool>& test_only) {
   FT_ASSERT(alpha > 0);
@@ -727,6 +788,13 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       double extent = 0;
       for (const auto& q : path.points_C) extent = std::max(extent, (q - path.points_C.front()).norm());
       if (extent < P.min_path_length) continue;
+      if (P.close_holes) {
+        const int added = close_hole_arc(path, cad_C, reg.normal_C, std::max(P.path_voxel, spacing),
+                                         std::max(0.15e-3, 3 * res.noise_sigma));
+        if (added > 0)
+          spdlog::debug("detect: region {}: hole arc closed along its circle ({} points added)", r,
+                        added);
+      }
       res.paths.push_back(std::move(path));
     }
   }

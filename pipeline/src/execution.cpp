@@ -47,7 +47,7 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
 
   double sim_time = 0, wall = 0, track_sq = 0, track_max = 0, track_rot_max = 0;
   double contact = 0, f_sum = 0, f_sq = 0, f_max = 0;
-  std::size_t track_n = 0, violations = 0, clamped = 0, steps = 0, executed = 0;
+  std::size_t track_n = 0, violations = 0, clamped = 0, steps = 0, executed = 0, force_stops = 0;
   double limit_excess = 0;
   std::string status = "ok";
   for (const auto& [k, g] : plans) {
@@ -92,6 +92,10 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
     }
     f_max = std::max(f_max, r.force_max);
     if (r.status != sim::ExecStatus::kOk && status == "ok") status = sim::to_string(r.status);
+    if (r.status == sim::ExecStatus::kForceLimit) {
+      ++force_stops;
+      spdlog::warn("execution: path {}: {}", k, r.message);
+    }
     if (r.status == sim::ExecStatus::kUnstable) {
       out.failed = true;
       out.failure = "execution of path " + std::to_string(k) + " stopped: " + r.message;
@@ -104,6 +108,7 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
   out.grid = grid_ptr;
 
   m["execution.paths_executed"] = executed;
+  m["execution.paths_stopped_force_limit"] = force_stops;
   m["execution.status"] = status;
   m["execution.tracking_rmse_mm"] = track_n ? std::sqrt(track_sq / track_n) * 1e3 : 0.0;
   m["execution.tracking_max_mm"] = track_max * 1e3;
@@ -117,6 +122,7 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
   m["removal.flash_remaining_mm3"] = res.flash_volume_remaining * 1e9;
   m["removal.flash_removed_fraction"] = res.flash_removed_fraction;
   m["removal.residual_flash_max_mm"] = res.residual_flash_max * 1e3;
+  m["removal.loose_flash_mm3"] = res.loose_flash_volume * 1e9;
   m["removal.gouge_max_mm"] = res.gouge_max_depth * 1e3;
   m["removal.gouge_volume_mm3"] = res.gouge_volume * 1e9;
   m["removal.voxel_size_mm"] = grid.voxel_size() * 1e3;

@@ -252,7 +252,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     m["segmentation.time_s"] = det.time_s;
     m["path.points_before_voxel"] = det.path_points_before;
     m["path.points_after_voxel"] = det.path_points_after;
-    m["path.voxel_time_ms"] = det.path_voxel_time_s * 1000;
+    m["timing.path_voxel_ms"] = det.path_voxel_time_s * 1000;
     std::vector<Curve> extracted, truth;
     for (const auto& p : det.paths) extracted.push_back({p.points_C, p.closed});
     for (const auto& f : setup.casting.fins) truth.push_back({f.root, f.closed});

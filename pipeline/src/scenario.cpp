@@ -300,6 +300,7 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
       dp.min_path_length = d.get_double("min_path_length", 0, 1, dp.min_path_length);
       dp.smoothing = static_cast<int>(d.get_int("smoothing", 0, 100, dp.smoothing));
       dp.mid_plane = d.get_bool("mid_plane", dp.mid_plane);
+      dp.close_holes = d.get_bool("close_holes", dp.close_holes);
     }
   }
 
@@ -314,6 +315,7 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     g.lead = pl2.get_double("lead", -0.8, 0.8, g.lead);
     g.tilt = pl2.get_double("tilt", -0.8, 0.8, g.tilt);
     g.max_depth_of_cut = pl2.get_double("max_depth_of_cut", 1e-5, 0.05, g.max_depth_of_cut);
+    g.overrun = pl2.get_double("overrun", 0.0, 0.05, g.overrun);
     g.manipulability_threshold =
         pl2.get_double("manipulability_threshold", 0, 1, g.manipulability_threshold);
     g.max_extra_tilt = pl2.get_double("max_extra_tilt", 0, 1.2, g.max_extra_tilt);
@@ -334,6 +336,7 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     e.enabled = ex.get_bool("enabled", e.enabled);
     e.rescan = ex.get_bool("rescan", e.rescan);
     e.exec.settle_time = ex.get_double("settle_time", 0, 10, e.exec.settle_time);
+    e.exec.max_force = ex.get_double("max_force", 0, 1e7, e.exec.max_force);
     e.exec.feedforward = ex.get_bool("feedforward", e.exec.feedforward);
     e.exec.load_compensation = ex.get_bool("load_compensation", e.exec.load_compensation);
     e.exec.log_decimation =

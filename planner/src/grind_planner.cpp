@@ -542,6 +542,7 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
   check_param(std::abs(P.tilt) < M_PI / 2, "tilt", "|tilt| < pi/2 [rad]", P.tilt);
   check_param(P.max_depth_of_cut > 0 && std::isfinite(P.max_depth_of_cut), "max_depth_of_cut",
               "> 0 [m]", P.max_depth_of_cut);
+  check_param(P.overrun >= 0 && P.overrun <= 0.05, "overrun", "0..0.05 [m]", P.overrun);
   check_param(P.manipulability_threshold >= 0, "manipulability_threshold", ">= 0",
               P.manipulability_threshold);
   check_param(P.max_extra_tilt >= 0 && P.max_extra_tilt <= M_PI / 4, "max_extra_tilt",
@@ -680,6 +681,30 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
     }
     ps[k] = {d[0], n, t, static_cast<int>(best)};
   }
+  // ---- Run-out past the ends of an open path, straight along the end tangents.
+  if (!path.closed && P.overrun > 0 && ps.size() >= 3) {
+    auto run_out = [&](const PathSample& end, const PathSample& inner, double sign) {
+      // Bend near the end: tangent turn over the last (up to) 3 mm.
+      const double arc = std::max((end.p - inner.p).norm(), 1e-9);
+      const double turn = std::acos(std::clamp(end.t.dot(inner.t), -1.0, 1.0));
+      const double kappa = turn / arc;
+      const double s_max = kappa > 1e-9 ? std::sqrt(2 * 20e-6 / kappa) : P.overrun;
+      const double len = std::min(P.overrun, s_max);
+      std::vector<PathSample> out;
+      const auto m = static_cast<std::size_t>(std::floor(len / P.spacing + 1e-9));
+      for (std::size_t i = 1; i <= m; ++i)
+        out.push_back({end.p + sign * static_cast<double>(i) * P.spacing * end.t, end.n, end.t,
+                       end.path_index});
+      return out;
+    };
+    const std::size_t back3 = std::min<std::size_t>(
+        ps.size() - 1, static_cast<std::size_t>(std::ceil(0.003 / P.spacing)));
+    auto head = run_out(ps.front(), ps[back3], -1.0);
+    auto tail = run_out(ps.back(), ps[ps.size() - 1 - back3], 1.0);
+    std::reverse(head.begin(), head.end());
+    ps.insert(ps.begin(), head.begin(), head.end());
+    ps.insert(ps.end(), tail.begin(), tail.end());
+  }
 
   // ---- Passes: equal radial depths, the last with the cutter against the wall.
   GrindResult res;
@@ -707,7 +732,7 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
   auto cut_geo = [&](int pass, std::size_t k) {
     // Open paths alternate direction from pass to pass (no traverse back through the air).
     const bool reverse = !path.closed && (pass % 2 == 1);
-    const PathSample& q = ps[reverse ? n_samples - k : k];
+    const PathSample& q = ps[reverse ? ps.size() - 1 - k : k];
     Geo g;
     g.p = q.p;
     g.n = q.n;
@@ -758,7 +783,7 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
       segs.push_back({SampleKind::kLink, pass, first, C.geo.size()});
     }
     const std::size_t first = C.geo.size();
-    for (std::size_t k = 0; k <= n_samples; ++k) C.geo.push_back(cut_geo(pass, k));
+    for (std::size_t k = 0; k < ps.size(); ++k) C.geo.push_back(cut_geo(pass, k));
     segs.push_back({SampleKind::kCut, pass, first, C.geo.size() - 1});
   }
   if (P.approach_distance > 0) {

@@ -215,6 +215,8 @@ const char* to_string(ExecStatus status) {
       return "reference_clamped";
     case ExecStatus::kUnstable:
       return "unstable";
+    case ExecStatus::kForceLimit:
+      return "force_limit";
   }
   return "?";
 }
@@ -233,6 +235,7 @@ void check_exec_params(const ExecParams& p) {
     bad("removal_motion", "a finite number of voxels >= 0", p.removal_motion);
   if (!(std::isfinite(p.removal_max_interval) && p.removal_max_interval > 0))
     bad("removal_max_interval", "a finite time > 0 [s]", p.removal_max_interval);
+  if (!(std::isfinite(p.max_force) && p.max_force >= 0)) bad("max_force", "a finite force >= 0 [N] (0: off)", p.max_force);
   if (!(std::isfinite(p.rate_window) && p.rate_window >= 0.5))
     bad("rate_window", "a finite number of voxels >= 0.5", p.rate_window);
   const ForceControlParams& f = p.force_control;
@@ -614,12 +617,21 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
       ++n;
       break;
     }
+    if (params.max_force > 0 && normal_force > params.max_force) {
+      res.status = ExecStatus::kForceLimit;
+      res.message = "protective stop at t = " + std::to_string(t_sim) + " s: process force " +
+                    std::to_string(normal_force) + " N above max_force " +
+                    std::to_string(params.max_force) + " N (tool driven into the part)";
+      ++n;
+      break;
+    }
   }
+  const bool stopped = res.status == ExecStatus::kUnstable || res.status == ExecStatus::kForceLimit;
   const auto wall1 = std::chrono::steady_clock::now();
 
   // Final state: remaining samples (trajectory end without settling) and the final error.
   mj_forward(m, d);
-  if (res.status != ExecStatus::kUnstable) {
+  if (!stopped) {
     check_limits();
     const Pose X_WT = pose_of(d->site_xpos + 3 * c.tcp, d->site_xmat + 9 * c.tcp);
     if (tracking) {
@@ -644,7 +656,7 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     res.residual = analyze_residual(*grid);
     res.has_residual = true;
   }
-  if (res.status != ExecStatus::kUnstable) {
+  if (!stopped) {
     if (res.first_clamp_joint >= 0) {
       res.status = ExecStatus::kReferenceClamped;
       res.message = "reference of joint" + std::to_string(res.first_clamp_joint + 1) +

@@ -883,8 +883,69 @@ StepRemoval remove_material(const ToolParams& tool, MaterialGrid& grid, const Po
 // ---------------------------------------------------------------------------------------------
 // Residual analysis
 
+namespace {
+
+// Flash voxels still joined to the casting: flood fill (26-neighbourhood) from the FLASH
+// voxels that touch a remaining BODY voxel. The rest are chips cut loose, which would fall off.
+std::vector<std::array<std::uint64_t, 8>> attached_flash(const MaterialGrid::Impl& g) {
+  using Brick = MaterialGrid::Impl::Brick;
+  std::vector<std::array<std::uint64_t, 8>> seen(g.bricks.size());
+  auto bit_of = [](int x, int y) { return std::uint64_t{1} << (x + 8 * y); };
+  // Calls f(brick, x, y, z) for every neighbour voxel of global voxel (gx, gy, gz) in a brick.
+  auto for_neighbours = [&](std::int64_t gx, std::int64_t gy, std::int64_t gz, auto&& f) {
+    for (int dz = -1; dz <= 1; ++dz)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          if (!dx && !dy && !dz) continue;
+          const std::int64_t nx = gx + dx, ny = gy + dy, nz = gz + dz;
+          const auto fl = [](std::int64_t v) { return v >= 0 ? v / kBrick : (v - kBrick + 1) / kBrick; };
+          const Brick* nb = g.find(fl(nx), fl(ny), fl(nz));
+          if (!nb) continue;
+          f(*nb, static_cast<int>(nx - nb->bx * kBrick), static_cast<int>(ny - nb->by * kBrick),
+            static_cast<int>(nz - nb->bz * kBrick));
+        }
+  };
+  std::vector<std::pair<std::uint32_t, int>> stack;
+  for (std::uint32_t n = 0; n < g.bricks.size(); ++n) {
+    const Brick& b = g.bricks[n];
+    if (b.n_flash == 0) continue;
+    for (int z = 0; z < 8; ++z)
+      for (std::uint64_t m = b.flash[z]; m; m &= m - 1) {
+        const int bit = std::countr_zero(m);
+        bool touches = false;
+        for_neighbours(b.bx * kBrick + (bit & 7), b.by * kBrick + (bit >> 3), b.bz * kBrick + z,
+                       [&](const Brick& nb, int x, int y, int zz) {
+                         touches = touches || (nb.body[zz] & bit_of(x, y));
+                       });
+        if (touches && !(seen[n][z] & (std::uint64_t{1} << bit))) {
+          seen[n][z] |= std::uint64_t{1} << bit;
+          stack.emplace_back(n, z * 64 + bit);
+        }
+      }
+  }
+  while (!stack.empty()) {
+    const auto [n, idx] = stack.back();
+    stack.pop_back();
+    const Brick& b = g.bricks[n];
+    const int bit = idx & 63, z = idx >> 6;
+    for_neighbours(b.bx * kBrick + (bit & 7), b.by * kBrick + (bit >> 3), b.bz * kBrick + z,
+                   [&](const Brick& nb, int x, int y, int zz) {
+                     const std::uint64_t mb = bit_of(x, y);
+                     const auto k = static_cast<std::uint32_t>(&nb - g.bricks.data());
+                     if ((nb.flash[zz] & mb) && !(seen[k][zz] & mb)) {
+                       seen[k][zz] |= mb;
+                       stack.emplace_back(k, zz * 64 + x + 8 * y);
+                     }
+                   });
+  }
+  return seen;
+}
+
+}  // namespace
+
 ResidualReport analyze_residual(const MaterialGrid& grid) {
   const MaterialGrid::Impl& g = MaterialAccess::get(grid);
+  const auto attached = attached_flash(g);
   const double vv = g.h * g.h * g.h;
   ResidualReport r;
   r.flash_voxels_remaining = g.flash;
@@ -894,6 +955,11 @@ ResidualReport analyze_residual(const MaterialGrid& grid) {
       g.flash0 > 0 ? static_cast<double>(g.flash0 - g.flash) / static_cast<double>(g.flash0) : 1.0;
   r.gouge_voxels = g.body_removed;
   r.gouge_volume = g.body_removed * vv;
+  for (std::uint32_t n = 0; n < g.bricks.size(); ++n)
+    for (int z = 0; z < 8; ++z)
+      r.loose_flash_voxels += static_cast<std::size_t>(
+          std::popcount(g.bricks[n].flash[z] & ~attached[n][z]));
+  r.loose_flash_volume = static_cast<double>(r.loose_flash_voxels) * vv;
 
   // Highest residual flash: bricks in decreasing order of an upper bound of their voxels'
   // distance (centre distance + half diagonal); stop when no brick can beat the best voxel.
@@ -911,7 +977,7 @@ ResidualReport analyze_residual(const MaterialGrid& grid) {
     if (bound <= best) break;
     const Brick& b = g.bricks[n];
     for (int z = 0; z < 8; ++z)
-      for (std::uint64_t m = b.flash[z]; m; m &= m - 1) {
+      for (std::uint64_t m = b.flash[z] & attached[n][z]; m; m &= m - 1) {
         const int bit = std::countr_zero(m);
         const Vec3 p = g.centre(b, bit & 7, bit >> 3, z);
         // A hit within `best` means this voxel cannot raise the maximum.

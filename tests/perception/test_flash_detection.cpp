@@ -190,6 +190,101 @@ TEST(FlashDetection, HoleFlashIsOneClosedLoop) {
   }
 }
 
+namespace {
+
+// A round wall of radius R (z from 0 to 20 mm, 96 facets) with a 1 mm ring fin 2 mm wide at
+// z = 10 mm on its open side: inside a hole (`hole`, normals towards the axis) or around a
+// boss (normals away from it). Fin points over azimuths in (hide_from, hide_to) are not seen.
+struct RoundCase {
+  TriangleMesh cad;
+  PointCloud scan_C;
+};
+
+RoundCase round_wall_with_ring(double R, bool hole, double hide_from, double hide_to) {
+  RoundCase rc;
+  const int n = 96;
+  for (int i = 0; i < n; ++i) {
+    const double a = 2 * M_PI * i / n;
+    rc.cad.vertices.emplace_back(R * std::cos(a), R * std::sin(a), 0.0);
+    rc.cad.vertices.emplace_back(R * std::cos(a), R * std::sin(a), 0.02);
+  }
+  for (int i = 0; i < n; ++i) {
+    const int a0 = 2 * i, a1 = 2 * i + 1, b0 = 2 * ((i + 1) % n), b1 = b0 + 1;
+    // Counter-clockwise seen from outside the solid: the solid is outside the hole's wall.
+    if (hole) {
+      rc.cad.triangles.emplace_back(a0, a1, b0);
+      rc.cad.triangles.emplace_back(b0, a1, b1);
+    } else {
+      rc.cad.triangles.emplace_back(a0, b0, a1);
+      rc.cad.triangles.emplace_back(b0, b1, a1);
+    }
+  }
+  Rng rng(17);
+  const double s = 0.03e-3, side = hole ? -1 : 1;  // the fin grows away from the solid
+  auto hidden = [&](double a) {
+    const double deg = std::fmod(a * 180 / M_PI + 360, 360);
+    return deg > hide_from && deg < hide_to;
+  };
+  const double apothem = R * std::cos(M_PI / n);
+  for (double a = 0; a < 2 * M_PI; a += 0.1e-3 / R) {
+    const Vec3 e(std::cos(a), std::sin(a), 0);
+    // The wall above and below the fin (on the facet polygon: radius between apothem and R).
+    for (double z = 0.0005; z < 0.02; z += 0.0002) {
+      if (std::abs(z - 0.01) < 0.0006) continue;
+      rc.scan_C.points.push_back(((apothem + rng.normal() * s) * e + Vec3(0, 0, z)).cast<float>());
+    }
+    if (hidden(a)) continue;
+    // Fin top and its edge face.
+    for (double d = 0.0001; d < 0.002; d += 0.0001)
+      rc.scan_C.points.push_back(((apothem + side * d) * e + Vec3(0, 0, 0.0105 + rng.normal() * s)).cast<float>());
+    for (double z = 0.0096; z < 0.0105; z += 0.0001)
+      rc.scan_C.points.push_back(((apothem + side * 0.002 + rng.normal() * s) * e + Vec3(0, 0, z)).cast<float>());
+  }
+  return rc;
+}
+
+}  // namespace
+
+TEST(FlashDetection, PartlySeenHoleRingIsClosedAlongItsCircle) {
+  // A 12 mm hole whose ring fin is not seen over 110 degrees: without the hole step the path
+  // is an open 250-degree arc; with it, one closed loop on the wall all the way round.
+  const double R = 0.006;
+  const RoundCase rc = round_wall_with_ring(R, true, 100, 210);
+  const MeshBvh cad(rc.cad);
+  DetectionParams off;
+  off.close_holes = false;
+  const auto r_off = detect_flash(to_scanner(rc.scan_C), cad, kX_CM, off);
+  const auto r_on = detect_flash(to_scanner(rc.scan_C), cad, kX_CM);
+  ASSERT_TRUE(r_on.ran) << r_on.message;
+  ASSERT_EQ(r_off.paths.size(), 1u) << r_off.message;
+  EXPECT_FALSE(r_off.paths[0].closed);
+  EXPECT_LT(r_off.paths[0].length(), 0.75 * 2 * M_PI * R);
+  ASSERT_EQ(r_on.paths.size(), 1u) << r_on.message;
+  const auto& loop = r_on.paths[0];
+  EXPECT_TRUE(loop.closed);
+  EXPECT_NEAR(loop.length(), 2 * M_PI * R, 0.03 * 2 * M_PI * R);
+  // Every point on the wall at the fin's mid height, the added arc included; no gap between
+  // neighbours longer than 1 mm.
+  for (std::size_t i = 0; i < loop.points_C.size(); ++i) {
+    const Vec3& p = loop.points_C[i];
+    EXPECT_NEAR(std::hypot(p.x(), p.y()), R, 0.05e-3);
+    EXPECT_NEAR(p.z(), 0.01, 0.1e-3);
+    EXPECT_LT((loop.points_C[(i + 1) % loop.points_C.size()] - p).norm(), 1e-3);
+  }
+}
+
+TEST(FlashDetection, PartlySeenRingAroundABossStaysOpen) {
+  // The same ring outside a round boss: an outer contour may have real gaps, so it is not
+  // closed (the wall normals point away from the circle's centre).
+  const RoundCase rc = round_wall_with_ring(0.02, false, 100, 210);
+  const MeshBvh cad(rc.cad);
+  const auto r = detect_flash(to_scanner(rc.scan_C), cad, kX_CM);
+  ASSERT_TRUE(r.ran) << r.message;
+  ASSERT_EQ(r.paths.size(), 1u) << r.message;
+  EXPECT_FALSE(r.paths[0].closed);
+  EXPECT_LT(r.paths[0].length(), 0.75 * 2 * M_PI * 0.02);
+}
+
 TEST(FlashDetection, NoFlashNothingToGrind) {
   Part part = straight_fin_part();
   part.fins.clear();

@@ -155,7 +155,9 @@ TEST(GrindPlanner, LineOnVerticalWallGivesKnownToolPoses) {
     EXPECT_GT(plunge, dtip);
   }
   const std::size_t c0 = r.segments[2].first_sample, c1 = r.segments[2].last_sample;
-  EXPECT_EQ(c1 - c0, 400u);  // 200 mm at 0.5 mm
+  // 200 mm at 0.5 mm, plus the straight run-out of P.overrun (2 mm) past each end.
+  ASSERT_DOUBLE_EQ(P.overrun, 0.002);
+  EXPECT_EQ(c1 - c0, 408u);
 
   for (std::size_t i = c0; i <= c1; ++i) {
     const GrindSample& s = r.samples[i];
@@ -163,7 +165,7 @@ TEST(GrindPlanner, LineOnVerticalWallGivesKnownToolPoses) {
     EXPECT_LT((s.X_CT.linear().col(2) - Vec3(0, 0, -1)).norm(), 1e-12) << i;
     EXPECT_NEAR(s.X_CT.translation().x(), -rad, 1e-12) << i;
     EXPECT_NEAR(s.X_CT.translation().z(), -dtip, 1e-12) << i;
-    EXPECT_NEAR(s.X_CT.translation().y(), -0.1 + 0.0005 * static_cast<double>(i - c0), 1e-9);
+    EXPECT_NEAR(s.X_CT.translation().y(), -0.102 + 0.0005 * static_cast<double>(i - c0), 1e-9);
     EXPECT_NEAR(s.axis_offset, rad, 1e-12);
     EXPECT_EQ(s.kind, SampleKind::kCut);
     const Pose X = X_BC * s.X_CT;
@@ -182,8 +184,8 @@ TEST(GrindPlanner, LineOnVerticalWallGivesKnownToolPoses) {
     EXPECT_LT(d.head<2>().norm(), 1e-12);
     EXPECT_GT(d.z(), 0);
   }
-  EXPECT_NEAR(r.path_length, 0.2 + 2 * 0.03, 1e-9);
-  EXPECT_NEAR(r.cut_length, 0.2, 1e-9);
+  EXPECT_NEAR(r.path_length, 0.204 + 2 * 0.03, 1e-9);
+  EXPECT_NEAR(r.cut_length, 0.204, 1e-9);
 
   expect_single_branch(robot, r, P.max_joint_jump);
   expect_trajectory_sound(robot, r);
@@ -413,11 +415,43 @@ TEST(GrindPlanner, PathPartlyOutOfReachFailsAtFirstBadIndex) {
   EXPECT_TRUE(r.trajectory.t.empty());
 }
 
+TEST(GrindPlanner, RunOutIsShortenedWhereTheWallCurves) {
+  // Half a 30 mm hole as an open path: a straight 2 mm run-out would leave the curved wall by
+  // 2²/(2·30) = 0.067 mm, so it is cut to where it stays within 20 µm (about 1.1 mm).
+  const RobotModel robot = ftest::ft6();
+  const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
+  GrindPath arc = hole_circle(0.03, 120);
+  arc.closed = false;
+  arc.points_C.resize(61);
+  arc.normals_C.resize(61);
+  GrindParams none;
+  none.overrun = 0;
+  const GrindResult r0 = plan_grind(robot, X_BC, arc, none);
+  const GrindResult r1 = plan_grind(robot, X_BC, arc);
+  ASSERT_TRUE(r0.ok() && r1.ok()) << r0.message << r1.message;
+  auto cut = [](const GrindResult& r) {
+    for (const auto& g : r.segments)
+      if (g.kind == SampleKind::kCut) return g;
+    return r.segments.front();
+  };
+  const auto g0 = cut(r0), g1 = cut(r1);
+  const std::size_t extra = (g1.last_sample - g1.first_sample) - (g0.last_sample - g0.first_sample);
+  EXPECT_GE(extra, 2u);   // some run-out at each end
+  EXPECT_LE(extra, 6u);   // but not the full 2 × 4 samples of 0.5 mm
+  const double rad = robot.tool.radius;
+  for (std::size_t i = g1.first_sample; i <= g1.last_sample; ++i) {
+    // The burr axis stays r inside the wall: the contact point within 20 µm of the circle.
+    const Vec3 p = r1.samples[i].X_CT.translation();
+    EXPECT_NEAR(std::hypot(p.x(), p.y()) + rad, 0.03, 25e-6) << i;
+  }
+}
+
 TEST(GrindPlanner, FinHigherThanDepthOfCutGivesPassesEndingAtTheWall) {
   const RobotModel robot = ftest::ft6();
   const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
   GrindParams P;
   P.max_depth_of_cut = 0.002;
+  P.overrun = 0;  // pass lengths exactly the line's
   GrindPath path = wall_line(-0.05, 0.05, 0.005);
   path.fin_height = 3 * P.max_depth_of_cut;
   const GrindResult r = plan_grind(robot, X_BC, path, P);
@@ -569,15 +603,22 @@ TEST(GrindPlanner, BadInputThrowsAndDuplicatesAreThinned) {
       dup.points_C.push_back(p + Vec3(0, 1e-5 * k, 0));
       dup.normals_C.push_back(Vec3(-1, 0, 0));
     }
-  const GrindResult r = plan_grind(robot, X_BC, dup);
+  GrindParams no_runout;
+  no_runout.overrun = 0;  // the cut exactly the thinned line
+  const GrindResult r = plan_grind(robot, X_BC, dup, no_runout);
   ASSERT_TRUE(r.ok()) << r.message;
   EXPECT_NEAR(r.cut_length, 0.04 + 2e-5, 1e-9);
+  GrindParams too_long;
+  too_long.overrun = 0.2;
+  EXPECT_THROW(plan_grind(robot, X_BC, path, too_long), ArgumentError);
 }
 
 TEST(GrindPlanner, WritesCsvJsonAndPlots) {
   const RobotModel robot = ftest::ft6();
+  GrindParams P;
+  P.overrun = 0;  // the last row exactly above the line's end
   const GrindResult r =
-      plan_grind(robot, translation(Vec3(0.7, 0, -0.15)), wall_line(-0.02, 0.02, 0.005));
+      plan_grind(robot, translation(Vec3(0.7, 0, -0.15)), wall_line(-0.02, 0.02, 0.005), P);
   ASSERT_TRUE(r.ok()) << r.message;
   const std::string dir = ftest::temp_dir("grind_planner");
   write_grind_outputs(r, dir);

@@ -266,6 +266,18 @@ TEST(Executor, GrindingRemovesMaterialAndLoadsTheFlange) {
   EXPECT_GT(x.force_max, 3 * r.force_max);
   std::printf("explicit rate force: normal force mean %.1f N max %.1f N, tracking RMSE %.3f mm\n",
               x.force_mean, x.force_max, x.tracking_rmse / mm);
+
+  // Protective stop: a force limit below the cut's peak stops the trajectory at the first step
+  // above it, and says so.
+  ExecParams ps = p;
+  ps.max_force = 0.5 * r.force_max;
+  MaterialGrid gs = *fin_case(cell).grid;
+  const ExecutionResult s = execute_trajectory(*cell.model, fc.traj, &gs, fc.tool, force, ps);
+  EXPECT_EQ(s.status, ExecStatus::kForceLimit);
+  EXPECT_NE(s.message.find("max_force"), std::string::npos) << s.message;
+  EXPECT_LT(s.sim_time, r.sim_time);
+  EXPECT_LE(s.removed_flash_volume, r.removed_flash_volume);
+  EXPECT_STREQ(to_string(s.status), "force_limit");
 }
 
 TEST(Executor, SameInputsGiveIdenticalLogs) {

@@ -294,6 +294,27 @@ TEST(Residual, PartialAndFullPass) {
   EXPECT_TRUE(remaining_flash_mesh(grid).triangles.empty());
 }
 
+TEST(Residual, ChipCutLooseAlongTheRootIsNotResidual) {
+  // A 2 mm burr cuts the fin's root strip (x in [0, 2] mm) over part of its length, then over
+  // all of it: the outer 3 mm stay joined while any root is left, then fall off as a chip.
+  const Cell cell;
+  MaterialGrid grid(cell.body, {cell.fin});
+  const double h = grid.voxel_size();
+  ToolParams tool = upright_tool();
+  tool.radius = 1 * mm;
+  pass(grid, tool, 1 * mm, -25 * mm, 10 * mm, 2e-5);
+  const ResidualReport held = analyze_residual(grid);
+  EXPECT_NEAR(held.residual_flash_max, 5 * mm, h);
+  EXPECT_EQ(held.loose_flash_voxels, 0u);
+  pass(grid, tool, 1 * mm, 10 * mm, 25 * mm, 2e-5);
+  const ResidualReport loose = analyze_residual(grid);
+  EXPECT_EQ(loose.residual_flash_max, 0.0);
+  EXPECT_EQ(loose.gouge_voxels, 0u);
+  // The chip: 3 x 40 x 1 mm, still counted as remaining flash volume.
+  EXPECT_NEAR(loose.loose_flash_volume, 120 * mm * mm * mm, 0.05 * 120 * mm * mm * mm);
+  EXPECT_DOUBLE_EQ(loose.loose_flash_volume, loose.flash_volume_remaining);
+}
+
 TEST(Residual, CopiesAreIndependent) {
   const Cell cell;
   MaterialGrid grid(cell.body, {cell.fin});

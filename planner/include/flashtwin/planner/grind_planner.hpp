@@ -47,7 +47,9 @@ struct GrindPath {
 struct GrindParams {
   double spacing = 0.0005;      ///< arc-length spacing of the samples along the path [m]; the input
                                 ///< points are thinned to at least this spacing first
-  double feed = 0.01;           ///< cutting feed along the tool path (passes and pass links) [m/s]
+  double feed = 0.005;          ///< cutting feed along the tool path (passes and pass links) [m/s]
+                                ///< (10 mm/s doubled the grinding force and, with the arm's
+                                ///< deflection, gouged 0.56 mm into the hole walls; 5 mm/s 0.09 mm)
   double approach_feed = 0.02;  ///< feed of the approach and retract moves [m/s]
   /// Feed of the approach's last stretch, where the cutter plunges through the fin to its
   /// working depth (tip depth + 2 mm above the fin plane down to it) [m/s]: removal there is a
@@ -59,6 +61,11 @@ struct GrindParams {
   /// Axial distance from the fin mid-plane crossing to the tip [m]; unset: tool length / 2.
   std::optional<double> tip_depth;
   double max_depth_of_cut = 0.002;  ///< largest radial depth of cut per pass [m]
+  /// Run-out past each end of an open path, straight along its end tangent [m]: at the last
+  /// path point the burr touches the wall at one point only, so the flash just beyond it
+  /// would stay. Shortened where the path bends near its end (the straight run-out would
+  /// leave a curving wall by more than 20 µm).
+  double overrun = 0.002;
   /// Manipulability |det J| below which a sample counts as near-singular [-] (the FT6 reaches
   /// about 0.12 in comfortable poses).
   double manipulability_threshold = 0.01;

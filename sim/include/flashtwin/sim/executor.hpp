@@ -80,6 +80,9 @@ struct ExecParams {
   /// stays in range; a reference beyond it is clamped and reported.
   double limit_margin = 0.01;
   double joint_tolerance = 1e-3;  ///< [rad] slack of the joint-range check (violation counting)
+  /// [N] protective stop, as a robot's collision detection does: a process normal force above
+  /// this (the tool driven into the casting) stops the trajectory there. 0: off.
+  double max_force = 2000;
   /// [voxels] tool motion (translation + rotation × cutter length) that triggers a removal step.
   double removal_motion = 0.5;
   double removal_max_interval = 0.01;  ///< [s] a removal step at least this often
@@ -106,9 +109,10 @@ enum class ExecStatus {
   kOk,                ///< ran to the end, no reference clamped
   kReferenceClamped,  ///< ran to the end; some reference left its joint's range and was clamped
   kUnstable,          ///< MuJoCo reported a bad state (NaN/huge acceleration); stopped early
+  kForceLimit,        ///< protective stop: the process force exceeded ExecParams::max_force
 };
 
-/// "ok", "reference_clamped", "unstable".
+/// "ok", "reference_clamped", "unstable", "force_limit".
 const char* to_string(ExecStatus status);
 
 /// Decimated time series (one row every log_decimation steps); all vectors have the same length

@@ -164,7 +164,13 @@ struct ResidualReport {
   double flash_volume_remaining = 0;  ///< [m^3]
   double flash_removed_fraction = 1;  ///< removed / initial voxelised flash (1 when there was none)
   double residual_flash_max = 0;  ///< [m] farthest remaining FLASH voxel centre from the nominal
-                                  ///< surface (0 when none is left)
+                                  ///< surface, among those still joined to the casting (0 when
+                                  ///< none is left)
+  /// Remaining FLASH no longer joined to the casting (26-neighbourhood through FLASH voxels to
+  /// a remaining BODY voxel): chips cut loose, which would fall off. Counted as remaining in
+  /// flash_volume_remaining, left out of residual_flash_max.
+  double loose_flash_volume = 0;  ///< [m^3]
+  std::size_t loose_flash_voxels = 0;
   double gouge_max_depth = 0;     ///< [m] deepest removed BODY voxel centre below the surface
   double gouge_volume = 0;        ///< [m^3] removed BODY
   std::size_t flash_voxels_remaining = 0;
