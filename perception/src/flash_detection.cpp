@@ -49,6 +49,8 @@ void check_params(const DetectionParams& p) {
     bad("min_threshold/max_threshold", "0 < min <= max", p.min_threshold);
   if (!(p.cluster_tolerance >= 0)) bad("cluster_tolerance", ">= 0 m", p.cluster_tolerance);
   if (p.min_region_points < 3) bad("min_region_points", ">= 3", p.min_region_points);
+  if (!(p.fragment_merge >= 0 && p.fragment_merge <= 20))
+    bad("fragment_merge", "0..20 (0: off)", p.fragment_merge);
   if (!(p.support_distance > 0)) bad("support_distance", "> 0 m", p.support_distance);
   if (!(p.alpha >= 0)) bad("alpha", ">= 0 m", p.alpha);
   if (!(p.inner_band >= 0)) bad("inner_band", ">= 0 m", p.inner_band);
@@ -511,6 +513,60 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
           }
       }
     }
+  }
+
+  // Where a view saw a fin only obliquely its scan lines lie farther apart than `tol`, and
+  // each line became a cluster of its own. Small clusters are re-clustered among themselves
+  // at a larger tolerance (big ones are left as they are).
+  // Only fragments that reach the casting take part (a scan line across a fin runs from its
+  // root to its edge; stray points and clutter mostly do not).
+  if (P.fragment_merge > 1) {
+    const std::size_t small = 5 * static_cast<std::size_t>(P.min_region_points);
+    const double reach = res.threshold + (P.inner_band > 0 ? P.inner_band : 1.5 * spacing);
+    std::vector<std::uint32_t> frag;  // indices into live
+    std::vector<std::vector<std::uint32_t>> kept;
+    // ... and rise clearly off it (noise tails and mixed pixels just past the threshold,
+    // scattered over a face, would otherwise join up).
+    const double rise = std::max(0.5e-3, 4 * res.threshold);
+    for (auto& cl : clusters) {
+      bool touches = false, rises = false;
+      if (cl.size() < small && cl.size() >= 5)
+        for (auto v : cl) {
+          const double dv = dist[cand[live[v]]];
+          touches = touches || dv < reach;
+          rises = rises || dv > rise;
+        }
+      if (touches && rises) frag.insert(frag.end(), cl.begin(), cl.end());
+      else kept.push_back(std::move(cl));
+    }
+    if (!frag.empty()) {
+      std::vector<Eigen::Vector3f> ff(frag.size());
+      for (std::size_t i = 0; i < frag.size(); ++i) ff[i] = lf[frag[i]];
+      detail::KdTree ftree(ff);
+      std::vector<int> fc(frag.size(), -1);
+      std::vector<std::pair<std::uint32_t, float>> nb;
+      std::size_t merged = 0;
+      for (std::size_t s0 = 0; s0 < frag.size(); ++s0) {
+        if (fc[s0] >= 0) continue;
+        std::vector<std::uint32_t> cl{static_cast<std::uint32_t>(s0)};
+        fc[s0] = 1;
+        for (std::size_t q = 0; q < cl.size(); ++q) {
+          ftree.radius(ff[cl[q]], static_cast<float>(P.fragment_merge * tol), nb);
+          for (const auto& [j, d2] : nb)
+            if (fc[j] < 0) {
+              fc[j] = 1;
+              cl.push_back(j);
+            }
+        }
+        for (auto& v : cl) v = frag[v];
+        merged += cl.size() >= small;
+        kept.push_back(std::move(cl));
+      }
+      spdlog::debug("detect: {} points in small clusters re-clustered at {:.3f} mm: {} region(s) "
+                    "of at least {} points",
+                    frag.size(), P.fragment_merge * tol * 1e3, merged, small);
+    }
+    clusters = std::move(kept);
   }
 
   const double band = P.inner_band > 0 ? P.inner_band : 1.5 * spacing;

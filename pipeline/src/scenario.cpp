@@ -288,6 +288,7 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
       dp.cluster_tolerance = d.get_double("cluster_tolerance", 0, 0.05, dp.cluster_tolerance);
       dp.min_region_points =
           static_cast<int>(d.get_int("min_region_points", 3, 1000000, dp.min_region_points));
+      dp.fragment_merge = d.get_double("fragment_merge", 0, 20, dp.fragment_merge);
       dp.alpha = d.get_double("alpha", 0, 0.05, dp.alpha);
       dp.inner_band = d.get_double("inner_band", 0, 0.05, dp.inner_band);
       dp.hidden_root_band = d.get_double("hidden_root_band", 0, 0.05, dp.hidden_root_band);

@@ -285,6 +285,45 @@ TEST(FlashDetection, PartlySeenRingAroundABossStaysOpen) {
   EXPECT_LT(r.paths[0].length(), 0.75 * 2 * M_PI * 0.02);
 }
 
+TEST(FlashDetection, FinSeenInSparseScanLinesIsOneRegion) {
+  // Two fins: one seen densely (+y wall), the other (−y wall) only in scan lines 0.8 mm apart,
+  // as from an oblique view. Clustered at 3 × the dense spacing, every line of the sparse fin
+  // is a cluster of its own and no grinding line comes out of it; re-clustering the small
+  // clusters at 2.5 × that tolerance joins them into one region with one path along the root.
+  Part part = straight_fin_part();
+  part.fins.emplace_back(Vec3(-0.04, -0.035, 0.0146), Vec3(0.04, -0.03, 0.0154));
+  const PointCloud dense = sample(part, 0.0001, 0.03e-3, 5);
+  PointCloud scan_C;
+  for (const auto& p : dense.points) {
+    const double line = std::remainder(static_cast<double>(p.x()), 0.0008);
+    const bool on_fin = p.y() < -0.030001f && p.z() > 0.0145f && p.z() < 0.0156f;
+    if (on_fin && std::abs(line) > 0.00006) continue;
+    scan_C.points.push_back(p);
+  }
+  const MeshBvh cad(part.cad());
+  const Vec3 a(-0.04, -0.03, 0.015), b(0.04, -0.03, 0.015);
+  // Length of the grinding lines lying along the sparse fin's root (within 0.2 mm of it).
+  const auto along_root = [&](const DetectionResult& r) {
+    double len = 0;
+    for (const auto& path : r.paths) {
+      bool on = true;
+      for (const auto& p : path.points_C) on = on && distance_to_segment(p, a, b) < 0.2e-3;
+      if (on) len += path.length();
+    }
+    return len;
+  };
+  DetectionParams off;
+  off.fragment_merge = 0;
+  const auto r_off = detect_flash(to_scanner(scan_C), cad, kX_CM, off);
+  const auto r_on = detect_flash(to_scanner(scan_C), cad, kX_CM);
+  ASSERT_TRUE(r_off.ran && r_on.ran) << r_on.message;
+  // One region per scan line without the merge (about 100), a handful with it.
+  EXPECT_GT(r_off.regions.size(), 50u);
+  EXPECT_LE(r_on.regions.size(), 4u);
+  EXPECT_LT(along_root(r_off), 0.02);
+  EXPECT_GT(along_root(r_on), 0.07);
+}
+
 TEST(FlashDetection, NoFlashNothingToGrind) {
   Part part = straight_fin_part();
   part.fins.clear();
