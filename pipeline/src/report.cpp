@@ -133,7 +133,8 @@ Image residual_plot(const ReportInputs& in) {
   spec.series.push_back(std::move(roots));
   // Maps of the material after grinding (ground truth): remaining flash by height above the
   // nominal surface, and the removed body.
-  const std::vector<Vec3> residual = sim::remaining_flash_points(*ex.grid);
+  const std::vector<Vec3> residual = sim::remaining_flash_points(*ex.grid, true);
+  const std::vector<Vec3> loose = sim::remaining_flash_points(*ex.grid, false);
   const std::vector<Vec3> gouge = sim::voxel_points(*ex.grid, sim::VoxelLabel::kGouge);
   const double bins[3] = {0.1e-3, 0.2e-3, 1e300};
   const char* labels[3] = {"flash left <= 0.1 mm high", "0.1-0.2 mm", "> 0.2 mm"};
@@ -153,6 +154,18 @@ Image residual_plot(const ReportInputs& in) {
     bin[b].y.push_back(residual[i].y() * 1e3);
   }
   for (auto& b : bin) spec.series.push_back(std::move(b));
+  if (!loose.empty()) {
+    Series l;
+    l.points = true;
+    l.size = 2;
+    l.color = {127, 127, 127};
+    l.label = "chip cut loose (falls off)";
+    for (const auto& p : loose) {
+      l.x.push_back(p.x() * 1e3);
+      l.y.push_back(p.y() * 1e3);
+    }
+    spec.series.push_back(std::move(l));
+  }
   Series g;
   g.points = true;
   g.size = 2;

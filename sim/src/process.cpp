@@ -1019,6 +1019,21 @@ std::vector<Vec3> remaining_flash_points(const MaterialGrid& grid) {
   return voxel_points(grid, VoxelLabel::kFlash);
 }
 
+std::vector<Vec3> remaining_flash_points(const MaterialGrid& grid, bool attached) {
+  const MaterialGrid::Impl& g = MaterialAccess::get(grid);
+  const auto joined = attached_flash(g);
+  std::vector<Vec3> out;
+  for (std::uint32_t n = 0; n < g.bricks.size(); ++n) {
+    const auto& b = g.bricks[n];
+    for (int z = 0; z < 8; ++z)
+      for (std::uint64_t m = b.flash[z] & (attached ? joined[n][z] : ~joined[n][z]); m; m &= m - 1) {
+        const int bit = std::countr_zero(m);
+        out.push_back(g.centre(b, bit & 7, bit >> 3, z));
+      }
+  }
+  return out;
+}
+
 TriangleMesh remaining_flash_mesh(const MaterialGrid& grid) {
   const MaterialGrid::Impl& g = MaterialAccess::get(grid);
   TriangleMesh mesh;
