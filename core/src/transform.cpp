@@ -98,4 +98,44 @@ std::string vec3_string(const Vec3& v) {
   return buf;
 }
 
+ArcFit fit_arc(const std::vector<Vec3>& points, const Vec3& axis, const std::vector<Vec3>& normals) {
+  ArcFit f;
+  const std::size_t n = points.size();
+  if (n < 3 || !(axis.norm() > 0)) return f;
+  f.w = axis.normalized();
+  f.u = f.w.unitOrthogonal();
+  f.v = f.w.cross(f.u);
+  // x² + y² + D x + E y + F = 0 in least squares.
+  Eigen::MatrixXd A(n, 3);
+  Eigen::VectorXd b(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const double x = f.u.dot(points[i]), y = f.v.dot(points[i]);
+    A(i, 0) = x;
+    A(i, 1) = y;
+    A(i, 2) = 1;
+    b(i) = -(x * x + y * y);
+  }
+  const Eigen::Vector3d s = A.colPivHouseholderQr().solve(b);
+  f.cu = -s(0) / 2;
+  f.cv = -s(1) / 2;
+  const double r2 = f.cu * f.cu + f.cv * f.cv - s(2);
+  if (!(r2 > 0) || !std::isfinite(r2)) return f;
+  f.radius = std::sqrt(r2);
+  double res2 = 0, facing = 0;
+  f.angle.resize(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const double x = f.u.dot(points[i]) - f.cu, y = f.v.dot(points[i]) - f.cv;
+    const double d = std::hypot(x, y) - f.radius;
+    res2 += d * d;
+    f.angle[i] = std::atan2(y, x);
+    if (i > 0) f.swept += std::remainder(f.angle[i] - f.angle[i - 1], 2 * M_PI);
+    if (normals.size() == n && std::hypot(x, y) > 0)
+      facing += normals[i].dot(-(x * f.u + y * f.v) / std::hypot(x, y));
+  }
+  f.rms = std::sqrt(res2 / static_cast<double>(n));
+  f.facing = normals.size() == n ? facing / static_cast<double>(n) : 0.0;
+  f.ok = true;
+  return f;
+}
+
 }  // namespace flashtwin

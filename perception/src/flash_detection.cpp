@@ -95,46 +95,19 @@ int close_hole_arc(FlashPath& path, const MeshBvh& cad_C, const Vec3& w, double 
   const auto& P = path.points_C;
   const std::size_t n = P.size();
   if (path.closed || n < 8) return 0;
-  const Vec3 u = w.unitOrthogonal(), v = w.cross(u);
-  // Algebraic circle fit (Kåsa) in (u, v): x² + y² + D x + E y + F = 0.
-  Eigen::MatrixXd A(n, 3);
-  Eigen::VectorXd b(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    const double x = u.dot(P[i]), y = v.dot(P[i]);
-    A(i, 0) = x;
-    A(i, 1) = y;
-    A(i, 2) = 1;
-    b(i) = -(x * x + y * y);
-  }
-  const Eigen::Vector3d s = A.colPivHouseholderQr().solve(b);
-  const double cx = -s(0) / 2, cy = -s(1) / 2, r2 = cx * cx + cy * cy - s(2);
-  if (!(r2 > 0)) return 0;
-  const double r = std::sqrt(r2);
-  if (r < 1e-3 || r > 0.1) return 0;
-  double res2 = 0, facing = 0, swept = 0, h0 = 0, h1 = 0;
-  std::vector<double> ang(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    const double x = u.dot(P[i]) - cx, y = v.dot(P[i]) - cy;
-    const double d = std::hypot(x, y) - r;
-    res2 += d * d;
-    ang[i] = std::atan2(y, x);
-    const Vec3 to_centre = -(x * u + y * v).normalized();
-    facing += path.normals_C[i].dot(to_centre);
-    if (i > 0) swept += std::remainder(ang[i] - ang[i - 1], 2 * M_PI);
-  }
-  h0 = w.dot(P.front());
-  h1 = w.dot(P.back());
-  if (std::sqrt(res2 / n) > fit_tol || facing / n < 0.8 || std::abs(swept) < M_PI ||
-      std::abs(swept) > 2 * M_PI)
+  const ArcFit arc = fit_arc(P, w, path.normals_C);
+  if (!arc.ok || arc.radius < 1e-3 || arc.radius > 0.1) return 0;
+  if (arc.rms > fit_tol || arc.facing < 0.8 || std::abs(arc.swept) < M_PI ||
+      std::abs(arc.swept) > 2 * M_PI)
     return 0;
-  const double missing = 2 * M_PI - std::abs(swept);
-  const int k = static_cast<int>(std::floor(missing * r / step));
-  const double dir = swept > 0 ? 1 : -1;
+  const double h0 = w.dot(P.front()), h1 = w.dot(P.back());
+  const double missing = 2 * M_PI - std::abs(arc.swept);
+  const int k = static_cast<int>(std::floor(missing * arc.radius / step));
+  const double dir = arc.swept > 0 ? 1 : -1;
   std::vector<Vec3> add_p, add_n;
   for (int j = 1; j < k; ++j) {
     const double f = static_cast<double>(j) / k;
-    const double a = ang.back() + dir * missing * f;
-    const Vec3 q = (cx + r * std::cos(a)) * u + (cy + r * std::sin(a)) * v + (h1 + f * (h0 - h1)) * w;
+    const Vec3 q = arc.point(arc.angle.back() + dir * missing * f, h1 + f * (h0 - h1));
     const auto cp = cad_C.closest(q, 4 * fit_tol);
     if (cp.triangle < 0 || cp.distance > fit_tol) return 0;
     add_p.push_back(q);
@@ -832,10 +805,28 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
         path.points_C.push_back(to_mid(cp.point));
         path.normals_C.push_back(cad.triangle_normal(static_cast<std::size_t>(std::max(0, cp.triangle))));
       }
+      // A fin stands out of its wall, so its normal is square to the wall normals along the
+      // root: where the wall curves (the normals span a plane: a hole, a rounded corner) it is
+      // that plane's normal, else the fitted fin normal less its part along the wall normal. A
+      // plane fitted to a few points of a partly seen ring can be tens of degrees off.
+      {
+        Mat3 M = Mat3::Zero();
+        for (const auto& n : path.normals_C) M += n * n.transpose();
+        M /= static_cast<double>(path.normals_C.size());
+        const Eigen::SelfAdjointEigenSolver<Mat3> es(M);  // ascending eigenvalues
+        Vec3 fn = es.eigenvalues()(1) > 0.05 ? Vec3(es.eigenvectors().col(0))
+                                             : Vec3(reg.normal_C - reg.normal_C.dot(es.eigenvectors().col(2)) *
+                                                                       es.eigenvectors().col(2));
+        if (fn.norm() > 1e-6) {
+          fn.normalize();
+          if (fn.dot(reg.normal_C) < 0) fn = -fn;
+          path.fin_normal_C = fn;
+        }
+      }
       // Direction: with the fin normal up, walk so that tangent · (n_fin × n_surface) > 0.
       double dir = 0;
       for (std::size_t i = 1; i < path.points_C.size(); ++i)
-        dir += (path.points_C[i] - path.points_C[i - 1]).dot(reg.normal_C.cross(path.normals_C[i]));
+        dir += (path.points_C[i] - path.points_C[i - 1]).dot(path.fin_normal_C.cross(path.normals_C[i]));
       if (dir < 0) {
         std::reverse(path.points_C.begin(), path.points_C.end());
         std::reverse(path.normals_C.begin(), path.normals_C.end());
@@ -845,7 +836,7 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       for (const auto& q : path.points_C) extent = std::max(extent, (q - path.points_C.front()).norm());
       if (extent < P.min_path_length) continue;
       if (P.close_holes) {
-        const int added = close_hole_arc(path, cad_C, reg.normal_C, std::max(P.path_voxel, spacing),
+        const int added = close_hole_arc(path, cad_C, path.fin_normal_C, std::max(P.path_voxel, spacing),
                                          std::max(0.15e-3, 3 * res.noise_sigma));
         if (added > 0)
           spdlog::debug("detect: region {}: hole arc closed along its circle ({} points added)", r,

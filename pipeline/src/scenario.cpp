@@ -317,6 +317,7 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     g.tilt = pl2.get_double("tilt", -0.8, 0.8, g.tilt);
     g.max_depth_of_cut = pl2.get_double("max_depth_of_cut", 1e-5, 0.05, g.max_depth_of_cut);
     g.overrun = pl2.get_double("overrun", 0.0, 0.05, g.overrun);
+    g.stock_allowance = pl2.get_double("stock_allowance", 0.0, 0.005, g.stock_allowance);
     g.manipulability_threshold =
         pl2.get_double("manipulability_threshold", 0, 1, g.manipulability_threshold);
     g.max_extra_tilt = pl2.get_double("max_extra_tilt", 0, 1.2, g.max_extra_tilt);

@@ -543,6 +543,8 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
   check_param(P.max_depth_of_cut > 0 && std::isfinite(P.max_depth_of_cut), "max_depth_of_cut",
               "> 0 [m]", P.max_depth_of_cut);
   check_param(P.overrun >= 0 && P.overrun <= 0.05, "overrun", "0..0.05 [m]", P.overrun);
+  check_param(P.stock_allowance >= 0 && P.stock_allowance <= 0.005, "stock_allowance",
+              "0..0.005 [m]", P.stock_allowance);
   check_param(P.manipulability_threshold >= 0, "manipulability_threshold", ">= 0",
               P.manipulability_threshold);
   check_param(P.max_extra_tilt >= 0 && P.max_extra_tilt <= M_PI / 4, "max_extra_tilt",
@@ -587,27 +589,39 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
     wall[i] = np.normalized();
   }
 
-  // ---- The burr must fit: a closed loop whose wall faces its centre is a hole, and the burr
-  // (radius r) cannot follow a hole narrower than r plus a small clearance.
-  if (path.closed && N0 >= 3) {
-    Vec3 c = Vec3::Zero();
-    for (const Vec3& p : path.points_C) c += p;
-    c /= static_cast<double>(N0);
-    double inward = 0, r_min = 1e300;
-    for (std::size_t i = 0; i < N0; ++i) {
-      Vec3 v = c - path.points_C[i];
-      v -= v.dot(f) * f;
-      const double dist = v.norm();
-      r_min = std::min(r_min, dist);
-      if (dist > 1e-12) inward += wall[i].dot(v / dist);
-    }
+  // ---- The burr must fit: a path on a wall that curves round its centre (closed, or an open
+  // arc of at least 45°: part of a hole seen) is in a hole, and the burr (radius r) cannot
+  // follow a hole narrower than r plus a small clearance.
+  if (N0 >= 3) {
     constexpr double kClearance = 2e-4;
-    if (inward / static_cast<double>(N0) > 0.5 && r_min < radius + kClearance) {
+    double hole_r = 1e300;
+    if (path.closed) {
+      Vec3 c = Vec3::Zero();
+      for (const Vec3& p : path.points_C) c += p;
+      c /= static_cast<double>(N0);
+      double inward = 0, r_min = 1e300;
+      for (std::size_t i = 0; i < N0; ++i) {
+        Vec3 v = c - path.points_C[i];
+        v -= v.dot(f) * f;
+        const double dist = v.norm();
+        r_min = std::min(r_min, dist);
+        if (dist > 1e-12) inward += wall[i].dot(v / dist);
+      }
+      if (inward / static_cast<double>(N0) > 0.5) hole_r = r_min;
+    } else {
+      const ArcFit arc = fit_arc(path.points_C, f, wall);
+      if (arc.ok && arc.facing > 0.8 && std::abs(arc.swept) >= M_PI / 4 &&
+          arc.rms < 0.1 * arc.radius)
+        hole_r = arc.radius;
+    }
+    if (hole_r < radius + kClearance) {
       GrindResult res;
       res.status = GrindStatus::kToolTooLarge;
-      res.message = strf("hole of radius %.2f mm (nearest root point to its centre) is too narrow "
-                         "for the burr of radius %.2f mm (+%.1f mm clearance): needs a smaller burr",
-                         r_min * 1e3, radius * 1e3, kClearance * 1e3);
+      res.message = strf("hole of radius %.2f mm (%s) is too narrow for the burr of radius "
+                         "%.2f mm (+%.1f mm clearance): needs a smaller burr",
+                         hole_r * 1e3,
+                         path.closed ? "nearest root point to its centre" : "circle through the arc",
+                         radius * 1e3, kClearance * 1e3);
       return res;
     }
   }
@@ -718,7 +732,8 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
              "max_depth_of_cut %g m, got fin_height %g m (%d passes)",
              P.max_depth_of_cut, path.fin_height, res.passes));
   for (int j = 0; j < res.passes; ++j)
-    res.pass_offsets.push_back(path.fin_height * (res.passes - 1 - j) / res.passes);
+    res.pass_offsets.push_back(P.stock_allowance +
+                               path.fin_height * (res.passes - 1 - j) / res.passes);
 
   // ---- The whole motion as one sample sequence: approach, passes joined by links, retract.
   Context C{robot, P, X_BC, f, ps[0].t, radius, length, tip_depth, P.lead, P.tilt, {}, {}};

@@ -54,6 +54,13 @@ GrindPath hole_circle(double R, int n) {
   return p;
 }
 
+// Parameters with the burr flush against the wall (no stock allowance): exact geometry.
+GrindParams flush() {
+  GrindParams p;
+  p.stock_allowance = 0;
+  return p;
+}
+
 // The timed joint trajectory is continuous and inside the joint limits (position, velocity,
 // acceleration), with no NaN, and its velocities integrate to its positions.
 void expect_trajectory_sound(const RobotModel& robot, const GrindResult& r) {
@@ -127,7 +134,7 @@ double wall_clearance(const Pose& X_CT, const Vec3& root, const Vec3& n, double 
 TEST(GrindPlanner, LineOnVerticalWallGivesKnownToolPoses) {
   const RobotModel robot = ftest::ft6();
   const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
-  GrindParams P;
+  GrindParams P = flush();
   const GrindResult r = plan_grind(robot, X_BC, wall_line(-0.1, 0.1, 0.005), P);
   ASSERT_TRUE(r.ok()) << r.message;
   EXPECT_EQ(r.passes, 1);
@@ -219,7 +226,7 @@ TEST(GrindPlanner, ClosedCircleAroundHole) {
   Pose X_BC = translation(Vec3(0.7, 0.05, -0.15));
   X_BC.linear() = Eigen::AngleAxisd(0.5, Vec3::UnitZ()).toRotationMatrix();
   const double R = 0.03;
-  GrindParams P;
+  GrindParams P = flush();
   const GrindResult r = plan_grind(robot, X_BC, hole_circle(R, 72), P);
   ASSERT_TRUE(r.ok()) << r.message;
   const double rad = robot.tool.radius, dtip = robot.tool.length / 2;
@@ -277,7 +284,7 @@ TEST(GrindPlanner, WristSingularityIsAvoidedByLeaningAndReported) {
     path.normals_C.push_back(Vec3(0, 1, 0));
   }
   path.fin_normal_C = kUp;
-  GrindParams P;
+  GrindParams P = flush();
   const GrindResult r = plan_grind(robot, X_BC, path, P);
   ASSERT_TRUE(r.ok()) << r.message;
 
@@ -341,7 +348,7 @@ TEST(GrindPlanner, JointLimitIsAvoidedByRotationAboutToolAxis) {
   RobotModel robot = ftest::ft6();
   const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
   const GrindPath path = wall_line(-0.15, 0.15, 0.005);
-  GrindParams P;
+  GrindParams P = flush();
   P.spin_candidates = 1;
   const GrindResult free_run = plan_grind(robot, X_BC, path, P);
   ASSERT_TRUE(free_run.ok()) << free_run.message;
@@ -415,6 +422,42 @@ TEST(GrindPlanner, PathPartlyOutOfReachFailsAtFirstBadIndex) {
   EXPECT_TRUE(r.trajectory.t.empty());
 }
 
+TEST(GrindPlanner, StockAllowanceKeepsTheBurrOffTheWall) {
+  // By default the last pass leaves 30 µm of stock: the burr axis is r + 0.03 mm off the wall.
+  const RobotModel robot = ftest::ft6();
+  const GrindResult r =
+      plan_grind(robot, translation(Vec3(0.7, 0, -0.15)), wall_line(-0.02, 0.02, 0.005));
+  ASSERT_TRUE(r.ok()) << r.message;
+  ASSERT_EQ(r.pass_offsets.size(), 1u);
+  EXPECT_DOUBLE_EQ(r.pass_offsets[0], GrindParams{}.stock_allowance);
+  EXPECT_DOUBLE_EQ(GrindParams{}.stock_allowance, 0.03e-3);
+  for (const auto& s : r.samples)
+    if (s.kind == SampleKind::kCut)
+      EXPECT_NEAR(s.X_CT.translation().x(), -(robot.tool.radius + 0.03e-3), 1e-12);
+}
+
+TEST(GrindPlanner, HoleNarrowerThanTheBurrIsRefused) {
+  // The burr (radius r) cannot follow a hole of radius r + 0.1 mm, whether its loop is whole
+  // or only a 120° arc of it was seen; a hole of radius r + 1 mm is planned.
+  const RobotModel robot = ftest::ft6();
+  const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
+  const double r = robot.tool.radius;
+  const GrindResult closed = plan_grind(robot, X_BC, hole_circle(r + 1e-4, 60));
+  EXPECT_EQ(closed.status, GrindStatus::kToolTooLarge) << closed.message;
+  GrindPath arc = hole_circle(r + 1e-4, 60);
+  arc.closed = false;
+  arc.points_C.resize(21);
+  arc.normals_C.resize(21);
+  const GrindResult open = plan_grind(robot, X_BC, arc);
+  EXPECT_EQ(open.status, GrindStatus::kToolTooLarge) << open.message;
+  EXPECT_NE(open.message.find("circle through the arc"), std::string::npos) << open.message;
+  GrindPath wide = hole_circle(r + 1e-3, 60);
+  wide.closed = false;
+  wide.points_C.resize(21);
+  wide.normals_C.resize(21);
+  EXPECT_TRUE(plan_grind(robot, X_BC, wide).ok());
+}
+
 TEST(GrindPlanner, RunOutIsShortenedWhereTheWallCurves) {
   // Half a 30 mm hole as an open path: a straight 2 mm run-out would leave the curved wall by
   // 2²/(2·30) = 0.067 mm, so it is cut to where it stays within 20 µm (about 1.1 mm).
@@ -424,10 +467,10 @@ TEST(GrindPlanner, RunOutIsShortenedWhereTheWallCurves) {
   arc.closed = false;
   arc.points_C.resize(61);
   arc.normals_C.resize(61);
-  GrindParams none;
+  GrindParams none = flush();
   none.overrun = 0;
   const GrindResult r0 = plan_grind(robot, X_BC, arc, none);
-  const GrindResult r1 = plan_grind(robot, X_BC, arc);
+  const GrindResult r1 = plan_grind(robot, X_BC, arc, flush());
   ASSERT_TRUE(r0.ok() && r1.ok()) << r0.message << r1.message;
   auto cut = [](const GrindResult& r) {
     for (const auto& g : r.segments)
@@ -449,7 +492,7 @@ TEST(GrindPlanner, RunOutIsShortenedWhereTheWallCurves) {
 TEST(GrindPlanner, FinHigherThanDepthOfCutGivesPassesEndingAtTheWall) {
   const RobotModel robot = ftest::ft6();
   const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
-  GrindParams P;
+  GrindParams P = flush();
   P.max_depth_of_cut = 0.002;
   P.overrun = 0;  // pass lengths exactly the line's
   GrindPath path = wall_line(-0.05, 0.05, 0.005);
@@ -541,7 +584,7 @@ TEST(GrindPlanner, LeadAndTiltGeometry) {
   EXPECT_LT((S0.translation() - S1.translation()).norm(), 1e-15);
   // Through the planner: a lead keeps the cutter flush.
   const RobotModel robot = ftest::ft6();
-  GrindParams P;
+  GrindParams P = flush();
   P.lead = 0.1;
   const GrindResult res =
       plan_grind(robot, translation(Vec3(0.7, 0, -0.15)), wall_line(-0.05, 0.05, 0.005), P);
@@ -603,7 +646,7 @@ TEST(GrindPlanner, BadInputThrowsAndDuplicatesAreThinned) {
       dup.points_C.push_back(p + Vec3(0, 1e-5 * k, 0));
       dup.normals_C.push_back(Vec3(-1, 0, 0));
     }
-  GrindParams no_runout;
+  GrindParams no_runout = flush();
   no_runout.overrun = 0;  // the cut exactly the thinned line
   const GrindResult r = plan_grind(robot, X_BC, dup, no_runout);
   ASSERT_TRUE(r.ok()) << r.message;
@@ -615,7 +658,7 @@ TEST(GrindPlanner, BadInputThrowsAndDuplicatesAreThinned) {
 
 TEST(GrindPlanner, WritesCsvJsonAndPlots) {
   const RobotModel robot = ftest::ft6();
-  GrindParams P;
+  GrindParams P = flush();
   P.overrun = 0;  // the last row exactly above the line's end
   const GrindResult r =
       plan_grind(robot, translation(Vec3(0.7, 0, -0.15)), wall_line(-0.02, 0.02, 0.005), P);

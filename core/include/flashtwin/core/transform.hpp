@@ -44,4 +44,24 @@ std::string exact_number(double v);
 /// "x y z" text with full double precision.
 std::string vec3_string(const Vec3& v);
 
+/// A circle fitted to points of a curve, in the plane across `axis` (Kåsa algebraic fit).
+struct ArcFit {
+  bool ok = false;               ///< false: fewer than 3 points or degenerate (collinear)
+  Vec3 u = Vec3::UnitX(), v = Vec3::UnitY(), w = Vec3::UnitZ();  ///< plane basis, w = axis
+  double cu = 0, cv = 0;         ///< centre in (u, v) [m]
+  double radius = 0;             ///< [m]
+  double rms = 0;                ///< RMS radial residual [m]
+  double swept = 0;              ///< signed angle swept from the first to the last point [rad]
+  double facing = 0;             ///< mean of normal · (unit vector to the centre); 1: a hole
+                                 ///< wall facing the centre, −1: an outer contour (needs normals)
+  std::vector<double> angle;     ///< polar angle of each point [rad]
+  Vec3 point(double a, double height) const {  ///< the circle's point at angle a, height along w
+    return (cu + radius * std::cos(a)) * u + (cv + radius * std::sin(a)) * v + height * w;
+  }
+};
+/// Fits a circle to ordered points (across `axis`); `normals` (optional, same length) give
+/// ArcFit::facing.
+ArcFit fit_arc(const std::vector<Vec3>& points, const Vec3& axis,
+               const std::vector<Vec3>& normals = {});
+
 }  // namespace flashtwin

@@ -66,6 +66,9 @@ struct GrindParams {
   /// would stay. Shortened where the path bends near its end (the straight run-out would
   /// leave a curving wall by more than 20 µm).
   double overrun = 0.002;
+  /// Radial stock left on the wall by the last pass [m]: the burr runs this far off the CAD
+  /// wall, so the arm's deflection and the wall's tessellation do not cut into the casting.
+  double stock_allowance = 0.03e-3;
   /// Manipulability |det J| below which a sample counts as near-singular [-] (the FT6 reaches
   /// about 0.12 in comfortable poses).
   double manipulability_threshold = 0.01;
@@ -124,7 +127,8 @@ enum class GrindStatus {
   kSingular,       ///< manipulability stays below the threshold for every allowed re-orientation
   kDiscontinuous,  ///< the chosen branch jumps (or is lost) between samples, not repairable
   kTimingFailed,   ///< time_parametrize refused the joint path (see message)
-  kToolTooLarge,   ///< a hole (closed loop, wall facing inward) narrower than the burr + 0.2 mm
+  kToolTooLarge,   ///< a hole (closed loop or open arc of ≥ 45°, wall facing inward) narrower
+                   ///< than the burr + 0.2 mm
 };
 
 /// Why a range of samples was re-oriented (or could not be).
