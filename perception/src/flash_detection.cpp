@@ -50,7 +50,7 @@ void check_params(const DetectionParams& p) {
   if (!(p.cluster_tolerance >= 0)) bad("cluster_tolerance", ">= 0 m", p.cluster_tolerance);
   if (p.min_region_points < 3) bad("min_region_points", ">= 3", p.min_region_points);
   if (!(p.fragment_merge >= 0 && p.fragment_merge <= 20))
-    bad("fragment_merge", "0..20 (0: off)", p.fragment_merge);
+    bad("fragment_merge", "0..20 (<= 1: off)", p.fragment_merge);
   if (!(p.support_distance > 0)) bad("support_distance", "> 0 m", p.support_distance);
   if (!(p.alpha >= 0)) bad("alpha", ">= 0 m", p.alpha);
   if (!(p.inner_band >= 0)) bad("inner_band", ">= 0 m", p.inner_band);
@@ -102,7 +102,13 @@ int close_hole_arc(FlashPath& path, const MeshBvh& cad_C, const Vec3& w, double 
     return 0;
   const double h0 = w.dot(P.front()), h1 = w.dot(P.back());
   const double missing = 2 * M_PI - std::abs(arc.swept);
-  const int k = static_cast<int>(std::floor(missing * arc.radius / step));
+  // Added points as far apart as the seen ones (at most `step`): an even density keeps the
+  // loop's centroid at the hole's centre.
+  double seen = 0;
+  for (std::size_t i = 1; i < n; ++i) seen += (P[i] - P[i - 1]).norm();
+  const double pitch = std::max(1e-5, std::min(step, seen / static_cast<double>(n - 1)));
+  const int k = static_cast<int>(std::floor(missing * arc.radius / pitch));
+  if (k < 2) return 0;
   const double dir = arc.swept > 0 ? 1 : -1;
   std::vector<Vec3> add_p, add_n;
   for (int j = 1; j < k; ++j) {
@@ -814,9 +820,14 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
         for (const auto& n : path.normals_C) M += n * n.transpose();
         M /= static_cast<double>(path.normals_C.size());
         const Eigen::SelfAdjointEigenSolver<Mat3> es(M);  // ascending eigenvalues
-        Vec3 fn = es.eigenvalues()(1) > 0.05 ? Vec3(es.eigenvectors().col(0))
-                                             : Vec3(reg.normal_C - reg.normal_C.dot(es.eigenvectors().col(2)) *
-                                                                       es.eigenvectors().col(2));
+        const Vec3 along_wall = reg.normal_C - reg.normal_C.dot(es.eigenvectors().col(2)) *
+                                                   es.eigenvectors().col(2);
+        // Curved wall: normals spread in a plane (second eigenvalue), none out of it (smallest),
+        // and that plane's normal within 45° of the fitted fin normal; else the straight case.
+        const Vec3 e0 = es.eigenvectors().col(0);
+        const bool curved = es.eigenvalues()(1) > 0.05 && es.eigenvalues()(0) < 0.02 &&
+                            std::abs(e0.dot(reg.normal_C)) > std::cos(M_PI / 4);
+        Vec3 fn = curved ? e0 : along_wall;
         if (fn.norm() > 1e-6) {
           fn.normalize();
           if (fn.dot(reg.normal_C) < 0) fn = -fn;

@@ -596,9 +596,16 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
     constexpr double kClearance = 2e-4;
     double hole_r = 1e300;
     if (path.closed) {
+      // Centroid weighted by arc length (points may be denser on one side of the loop).
       Vec3 c = Vec3::Zero();
-      for (const Vec3& p : path.points_C) c += p;
-      c /= static_cast<double>(N0);
+      double wsum = 0;
+      for (std::size_t i = 0; i < N0; ++i) {
+        const double wi = 0.5 * ((path.points_C[(i + 1) % N0] - path.points_C[i]).norm() +
+                                 (path.points_C[i] - path.points_C[(i + N0 - 1) % N0]).norm());
+        c += wi * path.points_C[i];
+        wsum += wi;
+      }
+      c /= std::max(wsum, 1e-300);
       double inward = 0, r_min = 1e300;
       for (std::size_t i = 0; i < N0; ++i) {
         Vec3 v = c - path.points_C[i];
@@ -698,12 +705,19 @@ GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPat
   // ---- Run-out past the ends of an open path, straight along the end tangents.
   if (!path.closed && P.overrun > 0 && ps.size() >= 3) {
     auto run_out = [&](const PathSample& end, const PathSample& inner, double sign) {
-      // Bend near the end: tangent turn over the last (up to) 3 mm.
+      // Bend near the end: tangent turn over the last (up to) 3 mm. Where the wall curves
+      // round the tool (concave, a hole) the burr axis runs on a circle smaller by r + e, and
+      // a straight run-out of length s cuts s² κ / (2 (1 − κ (r + e))) into the wall; where it
+      // curves away (convex) the run-out leaves the wall.
       const double arc = std::max((end.p - inner.p).norm(), 1e-9);
       const double turn = std::acos(std::clamp(end.t.dot(inner.t), -1.0, 1.0));
       const double kappa = turn / arc;
-      const double s_max = kappa > 1e-9 ? std::sqrt(2 * 20e-6 / kappa) : P.overrun;
-      const double len = std::min(P.overrun, s_max);
+      const bool concave = (sign * (end.t - inner.t)).dot(end.n) > 0;
+      double len = P.overrun;
+      if (concave && kappa > 1e-9) {
+        const double room = 1 - kappa * (radius + P.stock_allowance);
+        len = room > 0.05 ? std::min(len, std::sqrt(2 * 20e-6 * room / kappa)) : 0.0;
+      }
       std::vector<PathSample> out;
       const auto m = static_cast<std::size_t>(std::floor(len / P.spacing + 1e-9));
       for (std::size_t i = 1; i <= m; ++i)

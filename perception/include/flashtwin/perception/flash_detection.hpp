@@ -30,7 +30,7 @@ struct DetectionParams {
   double cluster_tolerance = 0;     ///< [m] Euclidean clustering; 0: 3 × spacing across lines
   int min_region_points = 40;       ///< smaller clusters are dropped as noise
   /// Clusters under 5 × min_region_points (a fin seen only obliquely: each scan line its own
-  /// cluster) are re-clustered among themselves at this × the clustering tolerance; 0: off.
+  /// cluster) are re-clustered among themselves at this × the clustering tolerance; ≤ 1: off.
   double fragment_merge = 2.5;
   double support_distance = 0.5e-3; ///< [m] inlier band of support planes (table, fixture)
   double support_side_tolerance = 0.5e-3;  ///< [m] a plane with the whole CAD on one side

@@ -63,8 +63,8 @@ struct GrindParams {
   double max_depth_of_cut = 0.002;  ///< largest radial depth of cut per pass [m]
   /// Run-out past each end of an open path, straight along its end tangent [m]: at the last
   /// path point the burr touches the wall at one point only, so the flash just beyond it
-  /// would stay. Shortened where the path bends near its end (the straight run-out would
-  /// leave a curving wall by more than 20 µm).
+  /// would stay. Shortened (to whole samples, possibly none) where the wall curves round the
+  /// burr near the end, so the straight run-out cuts at most 20 µm into it.
   double overrun = 0.002;
   /// Radial stock left on the wall by the last pass [m]: the burr runs this far off the CAD
   /// wall, so the arm's deflection and the wall's tessellation do not cut into the casting.
@@ -164,7 +164,8 @@ struct GrindResult {
   int seeds_tried = 0, seeds_completed = 0;  ///< (branch, spin) seeds tracked / that completed
 
   int passes = 0;
-  std::vector<double> pass_offsets;  ///< extra axis offset e of each pass [m], last one 0
+  std::vector<double> pass_offsets;  ///< extra axis offset e of each pass [m], the last one
+                                     ///< GrindParams::stock_allowance
   std::vector<GrindSample> samples;
   std::vector<GrindSegment> segments;
   std::vector<ReorientedRange> reoriented_ranges;
