@@ -669,7 +669,6 @@ int cmd_plan(const Common& c, const std::string& paths_path, const std::string& 
   gp.tilt = tilt_deg * M_PI / 180;
   json summary = json::array();
   int failed = 0;
-  std::string first_failure;
   for (std::size_t k = 0; k < paths.size(); ++k) {
     ft::planner::GrindResult g;
     try {
@@ -694,7 +693,6 @@ int cmd_plan(const Common& c, const std::string& paths_path, const std::string& 
       }
     } else {
       ++failed;
-      if (first_failure.empty()) first_failure = "path " + std::to_string(k) + ": " + g.message;
     }
     summary.push_back(pj);
   }

@@ -65,25 +65,19 @@ void reconstruction(const PointCloud& kept, const Boundary& b, benchmark::State&
   state.counters["max_um"] = mx * 1e6;
 }
 
-// Args: voxel size [µm], noise sigma [µm].
-void BM_VoxelCentroid(benchmark::State& state) {
+// Args: voxel size [µm], noise sigma [µm]; `grid` is the downsampler under test.
+void BM_Voxel(benchmark::State& state, PointCloud (*grid)(const PointCloud&, double)) {
   const Boundary& b = boundary(static_cast<int>(state.range(1)));
   const double voxel = state.range(0) * 1e-6;
   PointCloud out;
-  for (auto _ : state) out = perception::voxel_downsample(b.cloud, voxel);
+  for (auto _ : state) out = grid(b.cloud, voxel);
   reconstruction(out, b, state);
 }
-BENCHMARK(BM_VoxelCentroid)->Args({1000, 30})->Args({400, 30})->Args({1000, 100})->Args({400, 100})
+BENCHMARK_CAPTURE(BM_Voxel, centroid, &perception::voxel_downsample)
+    ->Args({1000, 30})->Args({400, 30})->Args({1000, 100})->Args({400, 100})
     ->Unit(benchmark::kMicrosecond);
-
-void BM_VoxelNearestOriginal(benchmark::State& state) {
-  const Boundary& b = boundary(static_cast<int>(state.range(1)));
-  const double voxel = state.range(0) * 1e-6;
-  PointCloud out;
-  for (auto _ : state) out = perception::voxel_downsample_nearest(b.cloud, voxel);
-  reconstruction(out, b, state);
-}
-BENCHMARK(BM_VoxelNearestOriginal)->Args({1000, 30})->Args({400, 30})->Args({1000, 100})->Args({400, 100})
+BENCHMARK_CAPTURE(BM_Voxel, nearest_original, &perception::voxel_downsample_nearest)
+    ->Args({1000, 30})->Args({400, 30})->Args({1000, 100})->Args({400, 100})
     ->Unit(benchmark::kMicrosecond);
 
 }  // namespace

@@ -43,6 +43,7 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
   const sim::MjModelPtr model = sim::load_mjcf_file(ss.files.mjcf);
   const sim::ToolParams tool = sim::tool_params_from(sc.robot.tool);
   sim::ExecParams ep = sc.execution.exec;
+  ep.analyze_residual = false;  // once, after the last path (below)
   out.target_force = ep.force_control.target_force;
 
   double sim_time = 0, wall = 0, track_sq = 0, track_max = 0, track_rot_max = 0;

@@ -5,8 +5,6 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
-#include <iterator>
 #include <sstream>
 
 #include "flashtwin/core/errors.hpp"
@@ -39,12 +37,6 @@ std::string html_escape(const std::string& s) {
   return o;
 }
 
-std::string read_binary(const std::string& path) {
-  std::ifstream f(path, std::ios::binary);
-  if (!f) throw IoError(path + ": cannot read");
-  return std::string(std::istreambuf_iterator<char>(f), {});
-}
-
 // One figure of the page: an image (embedded) or the reason it is missing.
 struct Figure {
   std::string caption;
@@ -56,7 +48,7 @@ std::string figure_html(const Figure& f) {
   std::ostringstream os;
   os << "<figure>";
   if (!f.png.empty()) {
-    os << "<img src=\"data:image/png;base64," << base64_encode(read_binary(f.png)) << "\" alt=\""
+    os << "<img src=\"data:image/png;base64," << base64_encode(read_text_file(f.png)) << "\" alt=\""
        << html_escape(f.caption) << "\">";
   } else {
     os << "<div class=\"missing\">not available: " << html_escape(f.error) << "</div>";
@@ -133,8 +125,9 @@ Image residual_plot(const ReportInputs& in) {
   spec.series.push_back(std::move(roots));
   // Maps of the material after grinding (ground truth): remaining flash by height above the
   // nominal surface, and the removed body.
-  const std::vector<Vec3> residual = sim::remaining_flash_points(*ex.grid, true);
-  const std::vector<Vec3> loose = sim::remaining_flash_points(*ex.grid, false);
+  const sim::RemainingFlash remaining = sim::split_remaining_flash(*ex.grid);
+  const std::vector<Vec3>& residual = remaining.attached;
+  const std::vector<Vec3>& loose = remaining.loose;
   const std::vector<Vec3> gouge = sim::voxel_points(*ex.grid, sim::VoxelLabel::kGouge);
   const double bins[3] = {0.1e-3, 0.2e-3, 1e300};
   const char* labels[3] = {"flash left <= 0.1 mm high", "0.1-0.2 mm", "> 0.2 mm"};
@@ -148,8 +141,9 @@ Image residual_plot(const ReportInputs& in) {
   }
   const std::size_t stride = std::max<std::size_t>(1, residual.size() / 60000);
   for (std::size_t i = 0; i < residual.size(); i += stride) {
-    const double h = ex.grid->nominal().closest(residual[i]).distance;
-    const int b = h <= bins[0] ? 0 : (h <= bins[1] ? 1 : 2);
+    // Only the bin matters: search no farther than its upper edge.
+    const auto cp = ex.grid->nominal().closest(residual[i], bins[1]);
+    const int b = cp.triangle < 0 ? 2 : (cp.distance <= bins[0] ? 0 : (cp.distance <= bins[1] ? 1 : 2));
     bin[b].x.push_back(residual[i].x() * 1e3);
     bin[b].y.push_back(residual[i].y() * 1e3);
   }

@@ -416,7 +416,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     write_text_file((dir / "metrics.json").string(), m.dump(2) + "\n");
     if (opt.report) {
       progress(opt, "report", 0.95);
-      ReportInputs ri{sc, ss, out, planned_paths, exec_summary, X_CM_est};
+      ReportInputs ri{sc, ss, out, planned_paths, exec_summary};
       write_report(dir.string(), ri);
     }
   }

@@ -652,7 +652,7 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     res.force_mean = force_sum / static_cast<double>(contact_steps);
     res.force_rmse = std::sqrt(force_err_sq / static_cast<double>(contact_steps));
   }
-  if (grid) {
+  if (grid && params.analyze_residual) {
     res.residual = analyze_residual(*grid);
     res.has_residual = true;
   }

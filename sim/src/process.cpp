@@ -1019,16 +1019,17 @@ std::vector<Vec3> remaining_flash_points(const MaterialGrid& grid) {
   return voxel_points(grid, VoxelLabel::kFlash);
 }
 
-std::vector<Vec3> remaining_flash_points(const MaterialGrid& grid, bool attached) {
+RemainingFlash split_remaining_flash(const MaterialGrid& grid) {
   const MaterialGrid::Impl& g = MaterialAccess::get(grid);
   const auto joined = attached_flash(g);
-  std::vector<Vec3> out;
+  RemainingFlash out;
   for (std::uint32_t n = 0; n < g.bricks.size(); ++n) {
     const auto& b = g.bricks[n];
     for (int z = 0; z < 8; ++z)
-      for (std::uint64_t m = b.flash[z] & (attached ? joined[n][z] : ~joined[n][z]); m; m &= m - 1) {
+      for (std::uint64_t m = b.flash[z]; m; m &= m - 1) {
         const int bit = std::countr_zero(m);
-        out.push_back(g.centre(b, bit & 7, bit >> 3, z));
+        const bool on = (joined[n][z] >> bit) & 1;
+        (on ? out.attached : out.loose).push_back(g.centre(b, bit & 7, bit >> 3, z));
       }
   }
   return out;

@@ -313,8 +313,9 @@ TEST(Residual, ChipCutLooseAlongTheRootIsNotResidual) {
   // The chip: 3 x 40 x 1 mm, still counted as remaining flash volume.
   EXPECT_NEAR(loose.loose_flash_volume, 120 * mm * mm * mm, 0.05 * 120 * mm * mm * mm);
   EXPECT_DOUBLE_EQ(loose.loose_flash_volume, loose.flash_volume_remaining);
-  EXPECT_TRUE(remaining_flash_points(grid, true).empty());
-  EXPECT_EQ(remaining_flash_points(grid, false).size(), loose.loose_flash_voxels);
+  const RemainingFlash split = split_remaining_flash(grid);
+  EXPECT_TRUE(split.attached.empty());
+  EXPECT_EQ(split.loose.size(), loose.loose_flash_voxels);
 }
 
 TEST(Residual, CopiesAreIndependent) {

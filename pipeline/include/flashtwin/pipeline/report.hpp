@@ -21,7 +21,6 @@ struct ReportInputs {
   const RunResult& result;
   const std::vector<PlannedPath>& plans;
   const ExecutionSummary& execution;
-  Pose X_CM_est;  ///< the pose perception estimated (scan points drawn where perception put them)
 };
 
 /// Writes DIR/report.html (and DIR/report/*.png); returns the report's path.

@@ -102,6 +102,9 @@ struct ExecParams {
   /// Called after every step with the executor's model and data and the simulated time [s]
   /// (video frames); must not change the state. Empty: none.
   std::function<void(const mjModel*, mjData*, double)> on_step;
+  /// Fill ExecutionResult::residual (analyze_residual of the grid after the run). A caller
+  /// running many trajectories on one grid turns it off and analyses once after the last.
+  bool analyze_residual = true;
 };
 
 /// What happened to the references and the simulation.
@@ -162,7 +165,7 @@ struct ExecutionResult {
   double removed_flash_volume = 0;  ///< [m^3] during this run
   double removed_body_volume = 0;   ///< [m^3] during this run (gouging)
   std::size_t removal_steps = 0;    ///< remove_material calls
-  bool has_residual = false;        ///< residual is filled (a grid was given)
+  bool has_residual = false;        ///< residual is filled (a grid was given, analyze_residual on)
   ResidualReport residual;          ///< analyze_residual of the grid after the run
 
   std::size_t steps = 0;       ///< MuJoCo steps taken

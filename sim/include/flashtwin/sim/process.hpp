@@ -187,9 +187,12 @@ std::vector<Vec3> voxel_points(const MaterialGrid& grid, VoxelLabel label);
 
 /// Centres [m, {C}] of the remaining FLASH voxels.
 std::vector<Vec3> remaining_flash_points(const MaterialGrid& grid);
-/// Centres of the remaining FLASH voxels still joined to the casting (`attached`) or cut loose
-/// (chips that would fall off; see ResidualReport::loose_flash_volume).
-std::vector<Vec3> remaining_flash_points(const MaterialGrid& grid, bool attached);
+/// Centres of the remaining FLASH voxels, split into those still joined to the casting and
+/// those cut loose (chips that would fall off; see ResidualReport::loose_flash_volume).
+struct RemainingFlash {
+  std::vector<Vec3> attached, loose;
+};
+RemainingFlash split_remaining_flash(const MaterialGrid& grid);
 
 /// Closed surface of the remaining flash: the voxel faces between remaining FLASH voxels and
 /// anything else, outward-oriented, vertices shared (2 triangles per exposed face; edges shared
