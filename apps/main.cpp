@@ -20,6 +20,8 @@
 #include "flashtwin/core/robot.hpp"
 #include "flashtwin/core/mesh_query.hpp"
 #include "flashtwin/perception/flash_detection.hpp"
+#include "flashtwin/pipeline/paths_io.hpp"
+#include "flashtwin/pipeline/pose_json.hpp"
 #include "flashtwin/pipeline/run.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
 #include "flashtwin/pipeline/sweep.hpp"
@@ -43,6 +45,10 @@ namespace ft = flashtwin;
 using json = nlohmann::json;
 
 namespace {
+
+using ft::pipeline::pose_json;
+using ft::pipeline::read_paths_file;
+using ft::pipeline::read_pose_file;
 
 constexpr int kExitOk = 0, kExitFailed = 1, kExitBadInput = 2;
 
@@ -78,11 +84,6 @@ ft::Vector6 to_q(const std::vector<double>& v, bool degrees) {
   ft::Vector6 q;
   for (int i = 0; i < ft::kNumJoints; ++i) q[i] = degrees ? v[i] * M_PI / 180 : v[i];
   return q;
-}
-
-json pose_json(const ft::Pose& X) {
-  const auto m = ft::to_row_major(X);
-  return json(std::vector<double>(m.begin(), m.end()));
 }
 
 void print_pose(const char* name, const ft::Pose& X) {
@@ -408,46 +409,6 @@ int cmd_register(const Common& c, const std::string& source_path, const std::str
   return r.confident ? kExitOk : kExitFailed;
 }
 
-// A pose file: JSON holding 16 row-major numbers, either as the whole document, or under
-// "T_target_source" (what `register --json` prints) or "X_CM"; 4x4 nested arrays work too.
-ft::Pose read_pose_file(const std::string& path,
-                        const std::vector<std::string>& keys = {"T_target_source", "X_CM"}) {
-  json j;
-  try {
-    j = json::parse(ft::read_text_file(path));
-  } catch (const json::parse_error& e) {
-    throw ft::InputError(path + ": expected JSON with a 4x4 pose, got a parse error (" + e.what() + ")");
-  }
-  if (j.is_object()) {
-    std::string names;
-    bool found = false;
-    for (const auto& k : keys) {
-      names += (names.empty() ? "'" : " or '") + k + "'";
-      if (!found && j.contains(k)) {
-        j = json(j[k]);
-        found = true;
-      }
-    }
-    if (!found) throw ft::InputError(path + ": expected key " + names + " with 16 numbers");
-  }
-  std::vector<double> v;
-  const auto collect = [&](const json& a, auto&& self) -> void {
-    if (a.is_array()) {
-      for (const auto& e : a) self(e, self);
-    } else if (a.is_number()) {
-      v.push_back(a.get<double>());
-    } else {
-      throw ft::InputError(path + ": expected numbers in the pose, got " + a.dump());
-    }
-  };
-  collect(j, collect);
-  if (v.size() != 16)
-    throw ft::InputError(path + ": expected 16 numbers (row-major 4x4), got " + std::to_string(v.size()));
-  std::array<double, 16> a{};
-  std::copy(v.begin(), v.end(), a.begin());
-  return ft::pose_from_row_major(a, path);
-}
-
 int cmd_detect(const Common& c, const std::string& scan_path, const std::string& cad_path,
                const std::string& pose_path, const std::string& out) {
   const ft::PointCloud scan = read_points(scan_path);
@@ -536,12 +497,13 @@ void print_run_summary(const ft::pipeline::Scenario& sc, const ft::pipeline::Run
 
 int cmd_run(const Common& c, const std::string& scenario_path, const std::string& out,
             long long seed_override, const std::vector<std::string>& sets, bool video,
-            const std::string& video_path, bool no_report, bool check) {
+            const std::string& video_path, bool no_report, bool check, int threads) {
   ft::pipeline::Scenario sc = ft::pipeline::load_scenario(scenario_path, sets);
   if (seed_override >= 0) ft::pipeline::set_seed(sc, static_cast<std::uint64_t>(seed_override));
   ft::pipeline::RunOptions opt;
   opt.out_dir = out;
   opt.report = !no_report;
+  opt.threads = threads;
   if (video || !video_path.empty())
     opt.video.path = video_path.empty() ? (std::filesystem::path(out) / "run.mp4").string()
                                         : video_path;
@@ -597,46 +559,6 @@ int cmd_sweep(const Common& c, const std::string& scenario_path, const std::stri
                 r.table_path.c_str());
   }
   return r.failures ? kExitFailed : kExitOk;
-}
-
-// Paths as `flashtwin detect` writes them (paths.json): points, normals, fin_normal, closed.
-std::vector<ft::planner::GrindPath> read_paths_file(const std::string& path) {
-  json j;
-  try {
-    j = json::parse(ft::read_text_file(path));
-  } catch (const json::parse_error& e) {
-    throw ft::InputError(path + ": expected the paths JSON of `flashtwin detect`, got a parse error (" +
-                         e.what() + ")");
-  }
-  if (!j.is_object() || !j.contains("paths") || !j["paths"].is_array())
-    throw ft::InputError(path + ": expected an object with a 'paths' array");
-  const auto vec = [&](const json& a, const std::string& where) {
-    if (!a.is_array() || a.size() != 3 || !a[0].is_number() || !a[1].is_number() || !a[2].is_number())
-      throw ft::InputError(path + ": " + where + ": expected [x, y, z]");
-    ft::Vec3 v(a[0].get<double>(), a[1].get<double>(), a[2].get<double>());
-    if (!v.allFinite()) throw ft::InputError(path + ": " + where + ": expected finite numbers");
-    return v;
-  };
-  std::vector<ft::planner::GrindPath> out;
-  for (std::size_t k = 0; k < j["paths"].size(); ++k) {
-    const auto& p = j["paths"][k];
-    const std::string where = "paths[" + std::to_string(k) + "]";
-    if (!p.is_object() || !p.contains("points") || !p["points"].is_array())
-      throw ft::InputError(path + ": " + where + ": expected 'points'");
-    ft::planner::GrindPath g;
-    for (std::size_t i = 0; i < p["points"].size(); ++i)
-      g.points_C.push_back(vec(p["points"][i], where + ".points[" + std::to_string(i) + "]"));
-    if (p.contains("normals")) {
-      if (!p["normals"].is_array() || p["normals"].size() != g.points_C.size())
-        throw ft::InputError(path + ": " + where + ".normals: expected one per point");
-      for (std::size_t i = 0; i < p["normals"].size(); ++i)
-        g.normals_C.push_back(vec(p["normals"][i], where + ".normals[" + std::to_string(i) + "]"));
-    }
-    if (p.contains("fin_normal")) g.fin_normal_C = vec(p["fin_normal"], where + ".fin_normal");
-    g.closed = p.value("closed", false);
-    out.push_back(std::move(g));
-  }
-  return out;
 }
 
 int cmd_plan(const Common& c, const std::string& paths_path, const std::string& cad_path,
@@ -836,9 +758,14 @@ int main(int argc, char** argv) {
       "run", "Run a scenario end to end (cell, scan, registration, flash detection, scoring) "
              "and write DIR/metrics.json; exit 1 when refused or an expect: bound fails");
   long long run_seed = -1;
+  int run_threads = 2;
   run->add_option("scenario", scenario, "Scenario YAML")->required();
   run->add_option("-o,--output", out, "Output folder")->required();
   run->add_option("--seed", run_seed, "Override the scenario's seed (casting, placement, scan)");
+  run->add_option("--threads", run_threads,
+                  "Threads for the scan and perception; results are identical for any count")
+      ->check(CLI::Range(1, 256))
+      ->capture_default_str();
   run->add_flag("--json", common.json, "Print metrics.json to stdout");
   std::vector<std::string> sets;
   bool run_video = false, no_report = false, run_check = false;
@@ -925,7 +852,7 @@ int main(int argc, char** argv) {
     if (*det) return cmd_detect(common, scan_path, cad_path, pose_path, out);
     if (*run)
       return cmd_run(common, scenario, out, run_seed, sets, run_video, video_path, no_report,
-                     run_check);
+                     run_check, run_threads);
     if (*sweep)
       return cmd_sweep(common, scenario, out, seeds_text, sets, shard_text, sweep_threads);
     if (*plan)

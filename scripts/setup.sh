@@ -1,38 +1,26 @@
 #!/usr/bin/env bash
-# Installs the Debian 12 packages flashtwin needs (only the missing ones), then configures and
-# builds it in ./build with ccache and -j2. Run as root on a fresh machine, or with sudo.
-# Usage: scripts/setup.sh [--tests] [--bench]
+# Installs the Debian 12 packages flashtwin needs (only the missing ones: scripts/install_deps.sh),
+# then configures and builds it in ./build with ccache and -j2. Run as root on a fresh machine, or
+# with sudo.
+# Usage: scripts/setup.sh [--tests] [--bench] [--sanitize]
+#   --sanitize builds ./build-asan instead (ASan + UBSan, with tests).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-PACKAGES=(build-essential cmake ccache pkg-config git
-  libeigen3-dev libnanoflann-dev libyaml-cpp-dev libspdlog-dev nlohmann-json3-dev libcli11-dev
-  liburdfdom-dev libassimp-dev libpcl-dev libembree-dev libopenvdb-dev libtbb-dev
-  libmujoco-dev libmujoco-samples libosmesa6-dev libstb-dev ffmpeg
-  libgtest-dev libgmock-dev libbenchmark-dev)
-
-missing=()
-for p in "${PACKAGES[@]}"; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
-done
-if ((${#missing[@]})); then
-  echo "setup: installing ${#missing[@]} missing package(s): ${missing[*]}"
-  SUDO=""
-  [ "$(id -u)" -ne 0 ] && SUDO="sudo"
-  $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends \
-    "${missing[@]}" >/dev/null
-fi
+scripts/install_deps.sh
 
 # Options given turn targets on; without them the build folder keeps what it had.
+BUILD=build
 OPTS=()
 for a in "$@"; do
   case "$a" in
     --tests) OPTS+=(-DFLASHTWIN_BUILD_TESTS=ON) ;;
     --bench) OPTS+=(-DFLASHTWIN_BUILD_BENCH=ON) ;;
-    *) echo "setup: unknown option $a (expected --tests or --bench)" >&2; exit 2 ;;
+    # A build of its own: sanitized objects never mix with the normal build's.
+    --sanitize) BUILD=build-asan; OPTS+=(-DFLASHTWIN_BUILD_TESTS=ON -DFLASHTWIN_SANITIZE=ON) ;;
+    *) echo "setup: unknown option $a (expected --tests, --bench or --sanitize)" >&2; exit 2 ;;
   esac
 done
 
-cmake -S . -B build -DCMAKE_BUILD_TYPE=Release "${OPTS[@]}" >/dev/null
-cmake --build build -j2
+cmake -S . -B "$BUILD" -DCMAKE_BUILD_TYPE=Release "${OPTS[@]}" >/dev/null
+cmake --build "$BUILD" -j2

@@ -22,6 +22,45 @@ ConfigNode ConfigNode::load_file(const std::string& path) {
   return load_string(read_text_file(path), path);
 }
 
+namespace {
+
+/// A mapping key as text. @throws ConfigError when the key is a list or a mapping.
+std::string key_text(const YAML::Node& key, const std::string& file, const std::string& where) {
+  if (!key.IsScalar())
+    throw ConfigError(file + ": " + (where.empty() ? std::string("(top level)") : where) +
+                      ": expected text keys, got a " + (key.IsSequence() ? "list" : "mapping") +
+                      " as a key");
+  return key.Scalar();
+}
+
+/// Refuses documents no configuration needs and every reader would choke on: nesting deeper
+/// than kMaxDepth (also what an alias cycle such as `&a [*a]` looks like), more than kMaxNodes
+/// nodes once aliases are expanded (the "billion laughs"), and non-text keys.
+void check_shape(const YAML::Node& root, const std::string& file) {
+  constexpr int kMaxDepth = 64;
+  constexpr long kMaxNodes = 1000000;
+  long nodes = 0;
+  std::function<void(const YAML::Node&, int)> visit = [&](const YAML::Node& n, int depth) {
+    if (depth > kMaxDepth)
+      throw ConfigError(file + ": expected at most " + std::to_string(kMaxDepth) +
+                        " levels of nesting, got more (or an alias that contains itself)");
+    if (++nodes > kMaxNodes)
+      throw ConfigError(file + ": expected at most " + std::to_string(kMaxNodes) +
+                        " YAML nodes with aliases expanded, got more");
+    if (n.IsMap()) {
+      for (const auto& kv : n) {
+        key_text(kv.first, file, "");
+        visit(kv.second, depth + 1);
+      }
+    } else if (n.IsSequence()) {
+      for (const auto& e : n) visit(e, depth + 1);
+    }
+  };
+  visit(root, 0);
+}
+
+}  // namespace
+
 ConfigNode ConfigNode::load_string(const std::string& text, const std::string& name) {
   YAML::Node root;
   try {
@@ -30,6 +69,7 @@ ConfigNode ConfigNode::load_string(const std::string& text, const std::string& n
     throw ConfigError(name + ": line " + std::to_string(e.mark.line + 1) +
                       ": malformed YAML: " + e.msg);
   }
+  check_shape(root, name);
   if (!root.IsMap())
     throw ConfigError(name + ": expected a YAML mapping at the top level, got " +
                       (root.IsNull() ? std::string("an empty document")
@@ -78,7 +118,7 @@ ConfigNode ConfigNode::operator[](std::size_t i) const {
 std::vector<std::string> ConfigNode::keys() const {
   std::vector<std::string> out;
   if (!node_.IsMap()) return out;
-  for (const auto& kv : node_) out.push_back(kv.first.as<std::string>());
+  for (const auto& kv : node_) out.push_back(key_text(kv.first, file_, path_));
   return out;
 }
 
@@ -185,7 +225,7 @@ void ConfigNode::check_all_used() const {
       [&](const YAML::Node& n, const std::string& p) {
         if (n.IsMap()) {
           for (const auto& kv : n) {
-            const std::string k = kv.first.as<std::string>();
+            const std::string k = key_text(kv.first, file_, p);
             const std::string cp = p.empty() ? k : p + "." + k;
             if (!used_->count(cp))
               unknown.push_back(cp);

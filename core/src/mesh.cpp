@@ -113,28 +113,35 @@ MeshCheck check_mesh(const TriangleMesh& mesh) {
 
 void weld_vertices(TriangleMesh& mesh, double tol) {
   // Hash vertices on a grid of cell size tol; compare against the 27 neighbouring cells.
+  // Cells are 64-bit: a millimetre CAD at scale 1 has coordinates of several hundred units,
+  // i.e. cell indices far beyond 32 bits at tol = 1e-9. The clamp keeps a huge or non-finite
+  // coordinate's conversion defined; such cells only share a bucket, and the distance test
+  // below decides.
+  using Cell = Eigen::Matrix<std::int64_t, 3, 1>;
   const double inv = 1.0 / std::max(tol, 1e-15);
-  auto cell = [&](const Vec3& v) {
-    return Eigen::Vector3i(static_cast<int>(std::floor(v.x() * inv)),
-                           static_cast<int>(std::floor(v.y() * inv)),
-                           static_cast<int>(std::floor(v.z() * inv)));
+  auto index = [&](double x) {
+    const double f = std::floor(x * inv);
+    constexpr double kMax = 4.0e18;  // < 2^63, and f ± 1 stays exact in int64
+    return static_cast<std::int64_t>(f >= -kMax && f <= kMax ? f : (f > 0 ? kMax : -kMax));
   };
-  auto key = [](const Eigen::Vector3i& c) {
-    return (static_cast<std::uint64_t>(c.x() & 0x1fffff) << 42) |
-           (static_cast<std::uint64_t>(c.y() & 0x1fffff) << 21) |
-           static_cast<std::uint64_t>(c.z() & 0x1fffff);
+  auto cell = [&](const Vec3& v) { return Cell(index(v.x()), index(v.y()), index(v.z())); };
+  auto key = [](const Cell& c) {
+    // 21 bits per axis; distant cells may share a key, which costs time, never correctness.
+    return (static_cast<std::uint64_t>(c.x()) & 0x1fffff) << 42 |
+           (static_cast<std::uint64_t>(c.y()) & 0x1fffff) << 21 |
+           (static_cast<std::uint64_t>(c.z()) & 0x1fffff);
   };
   std::unordered_map<std::uint64_t, std::vector<int>> grid;
   std::vector<int> remap(mesh.vertices.size());
   std::vector<Vec3> out;
   for (std::size_t i = 0; i < mesh.vertices.size(); ++i) {
     const Vec3& v = mesh.vertices[i];
-    const Eigen::Vector3i c = cell(v);
+    const Cell c = cell(v);
     int found = -1;
     for (int dx = -1; dx <= 1 && found < 0; ++dx)
       for (int dy = -1; dy <= 1 && found < 0; ++dy)
         for (int dz = -1; dz <= 1 && found < 0; ++dz) {
-          const auto it = grid.find(key(c + Eigen::Vector3i(dx, dy, dz)));
+          const auto it = grid.find(key(c + Cell(dx, dy, dz)));
           if (it == grid.end()) continue;
           for (int j : it->second)
             if ((out[j] - v).norm() <= tol) {

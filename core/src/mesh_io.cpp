@@ -69,6 +69,11 @@ TriangleMesh load_mesh(const std::string& path, double scale) {
     for (unsigned f = 0; f < am->mNumFaces; ++f) {
       const aiFace& face = am->mFaces[f];
       if (face.mNumIndices != 3) continue;  // points and lines carry no surface
+      for (unsigned k = 0; k < 3; ++k)
+        if (face.mIndices[k] >= am->mNumVertices)
+          throw InputError(path + ": face " + std::to_string(f) + ": expected vertex indices below " +
+                           std::to_string(am->mNumVertices) + ", got " +
+                           std::to_string(face.mIndices[k]));
       mesh.triangles.emplace_back(off + static_cast<int>(face.mIndices[0]),
                                   off + static_cast<int>(face.mIndices[1]),
                                   off + static_cast<int>(face.mIndices[2]));

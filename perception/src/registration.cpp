@@ -845,20 +845,26 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   {
     const Eigen::Matrix3f R = best.T.linear().cast<float>();
     const Vec3f t = best.T.translation().cast<float>();
-    long in = 0;
-    double sum2 = 0;
     const auto n = static_cast<long>(fine.size());
-#pragma omp parallel for reduction(+ : in, sum2) schedule(static) if (n >= 8192)
+    // Squared residual per point (-1: not an inlier), summed in point order afterwards: a
+    // parallel reduction would add in an order that depends on the thread count, and the
+    // verdict must not.
+    std::vector<double> e2(fine.size(), -1.0);
+#pragma omp parallel for schedule(static) if (n >= 8192)
     for (long i = 0; i < n; ++i) {
       std::uint32_t j;
       const Vec3f q = R * fine.points[i] + t;
       if (!tgt.nearest_in_band(q, j)) continue;
       const double e = (tgt.dense.points[j] - q).dot(tgt.dense.normals[j]);
-      if (std::abs(e) <= inlier) {
-        ++in;
-        sum2 += e * e;
-      }
+      if (std::abs(e) <= inlier) e2[i] = e * e;
     }
+    long in = 0;
+    double sum2 = 0;
+    for (const double v : e2)
+      if (v >= 0) {
+        ++in;
+        sum2 += v;
+      }
     res.fitness = static_cast<double>(in) / static_cast<double>(fine.size());
     res.rmse = in ? std::sqrt(sum2 / static_cast<double>(in)) : 0;
   }

@@ -1,5 +1,7 @@
 #include "flashtwin/pipeline/run.hpp"
 
+#include <omp.h>
+
 #include <spdlog/spdlog.h>
 
 #include <atomic>
@@ -168,6 +170,9 @@ void save_scan(const ScenarioScan& s, const std::string& dir, bool pcd) {
 
 RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   const auto t_total = Clock::now();
+  // Perception's parallel loops use this run's thread budget (a sweep runs each casting on
+  // one thread); its results are the same for any count.
+  omp_set_num_threads(std::max(1, opt.threads));
   RunResult out;
   json& m = out.metrics;
   const bool write = !opt.out_dir.empty();

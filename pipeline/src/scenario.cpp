@@ -67,6 +67,7 @@ void read_scanner(const ConfigNode& s, Scenario& sc) {
     sp.views.clear();
     for (std::size_t i = 0; i < vs.size(); ++i) {
       const ConfigNode v = vs[i];
+      if (!v.is_map()) v.fail("expected a view {kind: line|area, ...}, got " + v.describe());
       sim::ScanView view;
       const std::string kind = v.get_string("kind", "line");
       view.X_MS = view_pose(v);
@@ -427,6 +428,14 @@ CellSetup setup_cell(const Scenario& sc) {
     }
   }
   s.spec.X_WC = sim::rest_on_table(s.spec, s.casting.nominal, x, y, R);
+  // Refuse a cell that makes no sense (casting off the table, fixture in the casting, robot base
+  // or scanner in the table) before anything runs in it; the message names the scenario field.
+  try {
+    sim::check_cell_layout(s.spec, s.casting.nominal);
+  } catch (const ConfigError& e) {
+    if (sc.file.empty()) throw;
+    throw ConfigError(sc.file + ": " + e.what());
+  }
   return s;
 }
 

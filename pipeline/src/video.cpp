@@ -6,9 +6,20 @@
 #include <cmath>
 
 #include "flashtwin/core/errors.hpp"
+#include "flashtwin/sim/cell.hpp"
 #include "flashtwin/sim/renderer.hpp"
 
 namespace flashtwin::pipeline {
+
+std::vector<std::string> ffmpeg_arguments(const VideoOptions& o) {
+  return {"ffmpeg", "-nostdin", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
+          "-s", std::to_string(o.width) + "x" + std::to_string(o.height), "-r",
+          std::to_string(o.fps), "-i", "pipe:0", "-c:v", "libx264", "-pix_fmt", "yuv420p",
+          "-crf", "23", "-movflags", "+faststart",
+          // "file:" keeps a path such as "a:b.mp4" or "-x.mp4" from reading as a protocol or
+          // an option.
+          "file:" + o.path};
+}
 
 VideoRecorder::VideoRecorder(const VideoOptions& o, double sim_duration) : opt_(o) {
   if (o.width < 16 || o.height < 16 || o.width % 2 || o.height % 2 || o.width > 1920 ||
@@ -19,28 +30,25 @@ VideoRecorder::VideoRecorder(const VideoOptions& o, double sim_duration) : opt_(
   if (!(o.length > 0)) throw ArgumentError("video.length: expected > 0 s");
   if (o.flash_points < 0) throw ArgumentError("video.flash_points: expected >= 0");
   speedup_ = std::max(1.0, sim_duration / o.length);
-  const std::string cmd = "ffmpeg -loglevel error -y -f rawvideo -pix_fmt rgb24 -s " +
-                          std::to_string(o.width) + "x" + std::to_string(o.height) + " -r " +
-                          std::to_string(o.fps) +
-                          " -i - -c:v libx264 -pix_fmt yuv420p -crf 23 -movflags +faststart '" +
-                          o.path + "'";
-  pipe_ = ::popen(cmd.c_str(), "w");
-  if (!pipe_) throw IoError(o.path + ": cannot start ffmpeg (is it installed?)");
+  ffmpeg_ = std::make_unique<PipedProcess>(ffmpeg_arguments(o));
 }
 
 VideoRecorder::~VideoRecorder() {
-  if (pipe_) ::pclose(pipe_);
+  ffmpeg_.reset();
   if (model_) mj_deleteModel(model_);
 }
 
 void VideoRecorder::on_step(const mjModel* m, mjData* d, double t, const sim::MaterialGrid& grid) {
-  if (!pipe_ || t + 1e-9 < next_t_) return;
+  if (!ffmpeg_ || t + 1e-9 < next_t_) return;
   if (!renderer_) {
     // A render copy of the model with the static flash mesh hidden; the flash is drawn from
     // the voxel grid instead.
     model_ = mj_copyModel(nullptr, m);
-    const int g = mj_name2id(model_, mjOBJ_GEOM, "casting_flash");
-    if (g >= 0) model_->geom_rgba[4 * g + 3] = 0;
+    for (int g = 0; g < model_->ngeom; ++g) {
+      const char* name = mj_id2name(model_, mjOBJ_GEOM, g);
+      // A flash mesh over MuJoCo's face limit is written as several parts (sim::split_mesh).
+      if (name && sim::is_mesh_part(name, "casting_flash")) model_->geom_rgba[4 * g + 3] = 0;
+    }
     renderer_ = std::make_unique<sim::OffscreenRenderer>(model_, opt_.width, opt_.height);
     const auto all = sim::remaining_flash_points(grid);
     const double step = std::max(1.0, static_cast<double>(all.size()) / std::max(1, opt_.flash_points));
@@ -63,7 +71,7 @@ void VideoRecorder::on_step(const mjModel* m, mjData* d, double t, const sim::Ma
     if (grid.label_at(p) == sim::VoxelLabel::kFlash) overlay.points_W.push_back(X_WC_ * p);
   const Image img = renderer_->render(d, opt_.camera, &overlay);
   const auto& px = img.pixels();
-  if (std::fwrite(px.data(), 1, px.size(), pipe_) != px.size())
+  if (!ffmpeg_->write(px.data(), px.size()))
     throw IoError(opt_.path + ": ffmpeg stopped taking frames");
   ++frames_;
   next_t_ += speedup_ / opt_.fps;
@@ -71,9 +79,9 @@ void VideoRecorder::on_step(const mjModel* m, mjData* d, double t, const sim::Ma
 }
 
 std::size_t VideoRecorder::finish() {
-  if (pipe_) {
-    const int rc = ::pclose(pipe_);
-    pipe_ = nullptr;
+  if (ffmpeg_) {
+    const int rc = ffmpeg_->finish();
+    ffmpeg_.reset();
     if (rc != 0) throw IoError(opt_.path + ": ffmpeg failed (exit status " + std::to_string(rc) + ")");
   }
   renderer_.reset();

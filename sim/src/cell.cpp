@@ -1,5 +1,8 @@
 #include "flashtwin/sim/cell.hpp"
 
+#include <algorithm>
+#include <array>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -9,11 +12,23 @@
 #include "flashtwin/core/errors.hpp"
 #include "flashtwin/core/io.hpp"
 #include "flashtwin/core/mesh.hpp"
+#include "flashtwin/core/mesh_query.hpp"
 #include "flashtwin/sim/mujoco_handles.hpp"
 
 namespace flashtwin::sim {
 
 namespace {
+
+// Robot base and scanner head as cell_mjcf draws them (check_cell_layout tests the same boxes).
+constexpr double kPedestalHalfWidth = 0.2;   // [m] square pedestal from the floor up
+constexpr double kBaseHousingRadius = 0.11;  // [m] cylinder about z_B from base_height below {B}
+constexpr double kBaseHousingTop = 0.09;     // [m] ... up to this far below {B}
+const Vec3 kScannerHeadCentre_M(0.0, 0.0, -0.04);  // [m] box centre in {M}
+const Vec3 kScannerHeadHalfSize(0.06, 0.09, 0.035);
+// Fixture blocks: half extents and the clearance to the casting they are laid out with.
+const Vec3 kFixtureHalfSize(0.012, 0.03, 0.0125);
+constexpr double kFixtureGap = 0.008;     // [m] clear of the casting
+constexpr double kFixtureOffset = 0.02;   // [m] centre outside the bounds: half width + gap
 
 std::string num(double v) { return exact_number(v); }
 
@@ -46,6 +61,189 @@ std::string link_geoms(const DhRow& row, double radius, const char* material) {
   return os.str();
 }
 
+// The locating blocks beside the casting's bounds [lo, hi] in {C}: standing flat on the table
+// top, turned with the casting's x axis (its yaw about the table normal only), centred on its
+// y extent, kFixtureGap outside its x extent.
+std::vector<FixtureBlock> fixture_blocks_from_bounds(const CellSpec& spec, const Vec3& lo,
+                                                     const Vec3& hi) {
+  const Pose X_TableW = spec.X_WTable.inverse();
+  const Vec3 x_T = X_TableW.linear() * spec.X_WC.linear().col(0);
+  const double yaw = std::atan2(x_T.y(), x_T.x());
+  const Mat3 R_WF =
+      spec.X_WTable.linear() * Eigen::AngleAxisd(yaw, Vec3::UnitZ()).toRotationMatrix();
+  std::vector<FixtureBlock> blocks;
+  for (int sx = -1; sx <= 1; sx += 2) {
+    const Vec3 p_C(sx > 0 ? hi.x() + kFixtureOffset : lo.x() - kFixtureOffset,
+                   0.5 * (lo.y() + hi.y()), 0);
+    Vec3 p_T = X_TableW * (spec.X_WC * p_C);
+    p_T.z() = kFixtureHalfSize.z();
+    FixtureBlock b;
+    b.name = sx > 0 ? "fixture_right" : "fixture_left";
+    b.X_WF.linear() = R_WF;
+    b.X_WF.translation() = spec.X_WTable * p_T;
+    b.half_size = kFixtureHalfSize;
+    blocks.push_back(b);
+  }
+  return blocks;
+}
+
+// ---- exact geometric tests for the layout (boxes and triangle meshes)
+
+// Does triangle (a, b, c) meet the box |x| <= h (all in the box frame)? Separating axis
+// theorem (Akenine-Möller): the box's axes, the triangle's normal, their 9 edge cross products.
+// Touching counts as meeting.
+bool triangle_meets_box(const Vec3& h, const Vec3& a, const Vec3& b, const Vec3& c) {
+  for (int i = 0; i < 3; ++i)
+    if (std::min({a[i], b[i], c[i]}) > h[i] || std::max({a[i], b[i], c[i]}) < -h[i]) return false;
+  const auto separates = [&](const Vec3& n) {
+    const double pa = n.dot(a), pb = n.dot(b), pc = n.dot(c);
+    const double r = h.x() * std::abs(n.x()) + h.y() * std::abs(n.y()) + h.z() * std::abs(n.z());
+    return std::min({pa, pb, pc}) > r || std::max({pa, pb, pc}) < -r;
+  };
+  const Vec3 e[3] = {b - a, c - b, a - c};
+  const Vec3 n = e[0].cross(e[1]);
+  if (n.squaredNorm() > 0 && separates(n)) return false;
+  for (int i = 0; i < 3; ++i)
+    for (const Vec3& ej : e) {
+      const Vec3 axis = Vec3::Unit(i).cross(ej);
+      if (axis.squaredNorm() > 1e-30 && separates(axis)) return false;
+    }
+  return true;
+}
+
+// Generalised winding number of a closed, outward-oriented mesh about p: 1 inside, 0 outside
+// (sum of the triangles' signed solid angles, Van Oosterom and Strackee).
+double winding_number(const TriangleMesh& mesh, const Vec3& p) {
+  double sum = 0;
+  for (const auto& t : mesh.triangles) {
+    const Vec3 a = mesh.vertices[t[0]] - p, b = mesh.vertices[t[1]] - p,
+               c = mesh.vertices[t[2]] - p;
+    const double la = a.norm(), lb = b.norm(), lc = c.norm();
+    const double det = a.dot(b.cross(c));
+    const double div = la * lb * lc + a.dot(b) * lc + b.dot(c) * la + c.dot(a) * lb;
+    sum += 2.0 * std::atan2(det, div);
+  }
+  return sum / (4.0 * M_PI);
+}
+
+// The mesh (in {W}) in the frame of a box at X_WF.
+TriangleMesh in_box_frame(const TriangleMesh& mesh_W, const Pose& X_WF) {
+  return mesh_W.transformed(X_WF.inverse());
+}
+
+// Does the solid bounded by a closed mesh (given in the box frame) meet the box |x| <= h? Either
+// a triangle meets the box, or the box lies wholly inside the solid.
+bool solid_meets_box(const TriangleMesh& mesh_F, const Vec3& h) {
+  for (const auto& t : mesh_F.triangles)
+    if (triangle_meets_box(h, mesh_F.vertices[t[0]], mesh_F.vertices[t[1]], mesh_F.vertices[t[2]]))
+      return true;
+  return winding_number(mesh_F, Vec3::Zero()) > 0.5;
+}
+
+// How deep a box |x| <= h and the solid of mesh_F overlap, estimated from the mesh's vertices
+// inside the box (their depth below the box's faces) and from 3 x 3 x 3 points of the box
+// (corners, edge and face centres, centre) inside the solid (their distance to its surface)
+// [m]; 0 when no such point is inside (only edges crossing). For messages only.
+double overlap_depth(const TriangleMesh& mesh_F, const Vec3& h) {
+  double depth = 0;
+  for (const Vec3& v : mesh_F.vertices)
+    if ((v.cwiseAbs() - h).maxCoeff() < 0) depth = std::max(depth, (h - v.cwiseAbs()).minCoeff());
+  const MeshBvh bvh(mesh_F);
+  for (int i = -1; i <= 1; ++i)
+    for (int j = -1; j <= 1; ++j)
+      for (int k = -1; k <= 1; ++k) {
+        const Vec3 p(i * h.x(), j * h.y(), k * h.z());
+        if (winding_number(mesh_F, p) > 0.5) depth = std::max(depth, bvh.closest(p).distance);
+      }
+  return depth;
+}
+
+// Overlap of two boxes (centres and axes X_WA, X_WB, half extents ha, hb) along the axis of
+// least overlap among the 15 separating-axis candidates [m]: <= 0 when they are apart.
+double box_box_overlap(const Pose& X_WA, const Vec3& ha, const Pose& X_WB, const Vec3& hb) {
+  const Mat3 A = X_WA.linear(), B = X_WB.linear();
+  const Vec3 d = X_WB.translation() - X_WA.translation();
+  std::vector<Vec3> axes;
+  for (int i = 0; i < 3; ++i) {
+    axes.push_back(A.col(i));
+    axes.push_back(B.col(i));
+    for (int j = 0; j < 3; ++j) {
+      const Vec3 n = A.col(i).cross(B.col(j));
+      if (n.norm() > 1e-9) axes.push_back(n.normalized());
+    }
+  }
+  double least = std::numeric_limits<double>::infinity();
+  for (const Vec3& n : axes) {
+    double ra = 0, rb = 0;
+    for (int i = 0; i < 3; ++i) {
+      ra += ha[i] * std::abs(n.dot(A.col(i)));
+      rb += hb[i] * std::abs(n.dot(B.col(i)));
+    }
+    least = std::min(least, ra + rb - std::abs(n.dot(d)));
+  }
+  return least;
+}
+
+// Range along x of the part of triangle (a, b, c) inside the slab |y| <= h.y, |z| <= h.z
+// (Sutherland-Hodgman clipping); false when no part of it is inside.
+bool clipped_x_range(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& h, double& lo,
+                     double& hi) {
+  std::vector<Vec3> poly{a, b, c}, next;
+  for (int axis = 1; axis <= 2; ++axis)
+    for (double sign : {1.0, -1.0}) {
+      // Keep sign * p[axis] <= h[axis].
+      next.clear();
+      for (std::size_t i = 0; i < poly.size(); ++i) {
+        const Vec3& p = poly[i];
+        const Vec3& q = poly[(i + 1) % poly.size()];
+        const double fp = sign * p[axis] - h[axis], fq = sign * q[axis] - h[axis];
+        if (fp <= 0) next.push_back(p);
+        if ((fp < 0 && fq > 0) || (fp > 0 && fq < 0))
+          next.push_back(p + (q - p) * (fp / (fp - fq)));
+      }
+      poly.swap(next);
+      if (poly.empty()) return false;
+    }
+  lo = std::numeric_limits<double>::infinity();
+  hi = -lo;
+  for (const Vec3& p : poly) {
+    lo = std::min(lo, p.x());
+    hi = std::max(hi, p.x());
+  }
+  return true;
+}
+
+// A length for messages: millimetres below 0.1 m ("4.2 mm"), else metres ("0.210 m").
+std::string length_text(double v) {
+  char buf[48];
+  if (std::abs(v) < 0.1)
+    std::snprintf(buf, sizeof buf, "%.1f mm", v * 1e3);
+  else
+    std::snprintf(buf, sizeof buf, "%.3f m", v);
+  return buf;
+}
+
+// Metres with 3 decimals, no unit.
+std::string m3(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.3f", v);
+  return buf;
+}
+
+// The mesh files of one mesh for MuJoCo: DIR/meshes/<stem>.stl, or its parts <stem>.stl,
+// <stem>_part1.stl, ... when it has more faces than MuJoCo takes. Returns the paths relative
+// to DIR.
+std::vector<std::string> save_mujoco_mesh(const std::string& dir, const std::string& stem,
+                                          const TriangleMesh& mesh) {
+  std::vector<std::string> files;
+  const std::vector<TriangleMesh> parts = split_mesh(mesh);
+  for (std::size_t k = 0; k < parts.size(); ++k) {
+    files.push_back("meshes/" + mesh_part_name(stem, k) + ".stl");
+    save_mesh((std::filesystem::path(dir) / files.back()).string(), parts[k]);
+  }
+  return files;
+}
+
 }  // namespace
 
 std::string arm_mjcf(const RobotModel& robot, const Pose& X_WB, const CellSpec& spec) {
@@ -53,8 +251,9 @@ std::string arm_mjcf(const RobotModel& robot, const Pose& X_WB, const CellSpec& 
   const double radii[kNumJoints] = {0.08, 0.07, 0.06, 0.05, 0.045, 0.04};
   os << "    <body name=\"base\" " << pose_attrs(X_WB) << ">\n"
      << "      " << inertial_xml(robot.base, Pose::Identity()) << "\n"
-     << "      <geom type=\"cylinder\" fromto=\"0 0 " << num(-spec.base_height) << " 0 0 -0.09\" "
-     << "size=\"0.11\" material=\"robot\" group=\"1\"/>\n";
+     << "      <geom type=\"cylinder\" fromto=\"0 0 " << num(-spec.base_height) << " 0 0 "
+     << num(-kBaseHousingTop) << "\" size=\"" << num(kBaseHousingRadius)
+     << "\" material=\"robot\" group=\"1\"/>\n";
   std::string indent = "      ";
   for (int i = 0; i < kNumJoints; ++i) {
     // Body i is D-H frame {i-1} turned by joint i about its z axis; it sits at the constant
@@ -127,9 +326,13 @@ std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec, const Casti
      << "    <material name=\"fixture\" rgba=\"0.2 0.45 0.25 1\"/>\n"
      << "    <material name=\"scanner\" rgba=\"0.15 0.3 0.6 1\"/>\n";
   if (casting) {
-    os << "    <mesh name=\"casting_nominal\" file=\"" << ca.nominal_stl << "\"/>\n";
-    if (!ca.flash_stl.empty())
-      os << "    <mesh name=\"casting_flash\" file=\"" << ca.flash_stl << "\"/>\n";
+    // One mesh asset per part (split_mesh): MuJoCo 2.2.2 caps a mesh at kMaxMeshFaces faces.
+    for (std::size_t k = 0; k < ca.nominal_stl.size(); ++k)
+      os << "    <mesh name=\"" << mesh_part_name("casting_nominal", k) << "\" file=\""
+         << ca.nominal_stl[k] << "\"/>\n";
+    for (std::size_t k = 0; k < ca.flash_stl.size(); ++k)
+      os << "    <mesh name=\"" << mesh_part_name("casting_flash", k) << "\" file=\""
+         << ca.flash_stl[k] << "\"/>\n";
   }
   os << "  </asset>\n"
      << "  <worldbody>\n"
@@ -139,7 +342,8 @@ std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec, const Casti
         "diffuse=\"0.3 0.3 0.3\" castshadow=\"false\"/>\n"
      << "    <geom name=\"floor\" type=\"plane\" size=\"3 3 0.1\" material=\"floor\"/>\n"
      << "    <geom name=\"pedestal\" type=\"box\" pos=\"" << num(b.x()) << " " << num(b.y()) << " "
-     << num(pedestal_top / 2) << "\" size=\"0.2 0.2 " << num(pedestal_top / 2)
+     << num(pedestal_top / 2) << "\" size=\"" << num(kPedestalHalfWidth) << " "
+     << num(kPedestalHalfWidth) << " " << num(pedestal_top / 2)
      << "\" material=\"table\"/>\n";
   os << arm_mjcf(robot, spec.X_WB, spec);
   os << "    <body name=\"worktable\" " << pose_attrs(spec.X_WTable) << ">\n"
@@ -157,40 +361,34 @@ std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec, const Casti
   // The casting: the nominal body and its flashes, visual only (the process model does contact).
   os << "    <body name=\"casting\" " << pose_attrs(spec.X_WC) << ">\n";
   if (casting) {
-    os << "      <geom name=\"casting_body\" type=\"mesh\" mesh=\"casting_nominal\" "
-          "material=\"casting\" contype=\"0\" conaffinity=\"0\"/>\n";
-    if (!ca.flash_stl.empty())
-      os << "      <geom name=\"casting_flash\" type=\"mesh\" mesh=\"casting_flash\" "
-            "material=\"flash\" contype=\"0\" conaffinity=\"0\"/>\n";
+    // A split mesh is one geom per part, all alike. contype = conaffinity = 0: MuJoCo neither
+    // collides them nor builds their convex hulls, so splitting changes no dynamics.
+    for (std::size_t k = 0; k < ca.nominal_stl.size(); ++k)
+      os << "      <geom name=\"" << mesh_part_name("casting_body", k)
+         << "\" type=\"mesh\" mesh=\"" << mesh_part_name("casting_nominal", k)
+         << "\" material=\"casting\" contype=\"0\" conaffinity=\"0\"/>\n";
+    for (std::size_t k = 0; k < ca.flash_stl.size(); ++k)
+      os << "      <geom name=\"" << mesh_part_name("casting_flash", k)
+         << "\" type=\"mesh\" mesh=\"" << mesh_part_name("casting_flash", k)
+         << "\" material=\"flash\" contype=\"0\" conaffinity=\"0\"/>\n";
   } else {
     const Vec3 c = 0.5 * (ca.lo + ca.hi), h = 0.5 * (ca.hi - ca.lo);
     os << "      <geom name=\"casting_body\" type=\"box\" pos=\"" << vec3_string(c) << "\" size=\""
        << vec3_string(h) << "\" material=\"casting\"/>\n";
   }
   os << "    </body>\n";
-  // Fixture: two locating blocks on the table beside the casting's footprint along its x axis.
-  {
-    const Pose X_TableW = spec.X_WTable.inverse();
-    // Blocks stand flat on the table, turned with the casting's x axis (its yaw only).
-    const Vec3 x_T = X_TableW.linear() * spec.X_WC.linear().col(0);
-    const double yaw = std::atan2(x_T.y(), x_T.x());
-    const Mat3 R_W_fixture =
-        spec.X_WTable.linear() * Eigen::AngleAxisd(yaw, Vec3::UnitZ()).toRotationMatrix();
-    for (int sx = -1; sx <= 1; sx += 2) {
-      const Vec3 p_C(sx > 0 ? ca.hi.x() + 0.02 : ca.lo.x() - 0.02, 0.5 * (ca.lo.y() + ca.hi.y()), 0);
-      Vec3 p_T = X_TableW * (spec.X_WC * p_C);
-      p_T.z() = 0.0125;
-      const Vec3 p_W = spec.X_WTable * p_T;
-      os << "    <geom name=\"fixture_" << (sx > 0 ? "right" : "left")
-         << "\" type=\"box\" size=\"0.012 0.03 0.0125\" pos=\"" << vec3_string(p_W) << "\" quat=\""
-         << quat_wxyz_string(R_W_fixture) << "\" material=\"fixture\" contype=\"0\" "
-         << "conaffinity=\"0\"/>\n";
-    }
-  }
+  // Fixture: the given blocks, or two locating blocks beside the casting's bounds.
+  for (const FixtureBlock& f :
+       spec.fixtures.empty() ? fixture_blocks_from_bounds(spec, ca.lo, ca.hi) : spec.fixtures)
+    os << "    <geom name=\"" << f.name << "\" type=\"box\" size=\"" << vec3_string(f.half_size)
+       << "\" pos=\"" << vec3_string(f.X_WF.translation()) << "\" quat=\""
+       << quat_wxyz_string(f.X_WF.linear()) << "\" material=\"fixture\" contype=\"0\" "
+       << "conaffinity=\"0\"/>\n";
   // The scanner head at its mount {M} (z_M is its viewing direction) and its camera.
   os << "    <body name=\"scanner\" " << pose_attrs(spec.X_WM) << ">\n"
-     << "      <geom name=\"scanner_head\" type=\"box\" pos=\"0 0 -0.04\" size=\"0.06 0.09 0.035\" "
-        "material=\"scanner\" contype=\"0\" conaffinity=\"0\"/>\n"
+     << "      <geom name=\"scanner_head\" type=\"box\" pos=\"" << vec3_string(kScannerHeadCentre_M)
+     << "\" size=\"" << vec3_string(kScannerHeadHalfSize)
+     << "\" material=\"scanner\" contype=\"0\" conaffinity=\"0\"/>\n"
      << "      <camera name=\"scanner_view\" quat=\"0 1 0 0\" fovy=\"50\"/>\n"
      << "    </body>\n";
   // Named cameras aimed at the casting (targetbody keeps them aimed when it moves).
@@ -261,17 +459,15 @@ CellFiles write_cell(const RobotModel& robot, const CellSpec& spec, const Castin
   f.truth = (fs::path(dir) / "truth").string();
 
   CastingAssets assets;
-  assets.nominal_stl = "meshes/casting_nominal.stl";
-  save_mesh((fs::path(dir) / assets.nominal_stl).string(), casting.nominal);
+  assets.nominal_stl = save_mujoco_mesh(dir, "casting_nominal", casting.nominal);
   const TriangleMesh flash = casting.flash_mesh();
-  if (!flash.triangles.empty()) {
-    assets.flash_stl = "meshes/casting_flash.stl";
-    save_mesh((fs::path(dir) / assets.flash_stl).string(), flash);
-  }
+  if (!flash.triangles.empty()) assets.flash_stl = save_mujoco_mesh(dir, "casting_flash", flash);
   casting.nominal.bounds(assets.lo, assets.hi);
   save_mesh(f.cad, casting.nominal);
   write_ground_truth(casting, spec.X_WC, f.truth);
-  write_text_file(f.mjcf, cell_mjcf(robot, spec, &assets));
+  CellSpec laid_out = spec;
+  if (laid_out.fixtures.empty()) laid_out.fixtures = fixture_blocks(spec, casting.nominal);
+  write_text_file(f.mjcf, cell_mjcf(robot, laid_out, &assets));
   write_text_file(f.urdf, robot_urdf(robot));
   f.model = check_mjcf(f.mjcf);
   return f;
@@ -282,16 +478,23 @@ std::string write_cell_variant(const RobotModel& robot, const CellSpec& spec,
                                const std::string& dir, const std::string& name) {
   namespace fs = std::filesystem;
   CastingAssets assets;
-  assets.nominal_stl = "meshes/casting_nominal.stl";
-  if (!fs::exists(fs::path(dir) / assets.nominal_stl))
-    throw IoError(dir + ": expected a cell written by write_cell (meshes/casting_nominal.stl)");
-  if (!flash_C.triangles.empty()) {
-    assets.flash_stl = "meshes/" + name + "_flash.stl";
-    save_mesh((fs::path(dir) / assets.flash_stl).string(), flash_C);
+  // The nominal mesh files of write_cell, split the same way (split_mesh depends on the face
+  // count only).
+  const std::size_t parts =
+      std::max<std::size_t>(1, (nominal.triangles.size() + kMaxMeshFaces - 1) / kMaxMeshFaces);
+  for (std::size_t k = 0; k < parts; ++k) {
+    assets.nominal_stl.push_back("meshes/" + mesh_part_name("casting_nominal", k) + ".stl");
+    if (!fs::exists(fs::path(dir) / assets.nominal_stl.back()))
+      throw IoError(dir + ": expected a cell written by write_cell (" + assets.nominal_stl.back() +
+                    ")");
   }
+  if (!flash_C.triangles.empty())
+    assets.flash_stl = save_mujoco_mesh(dir, name + "_flash", flash_C);
   nominal.bounds(assets.lo, assets.hi);
+  CellSpec laid_out = spec;
+  if (laid_out.fixtures.empty()) laid_out.fixtures = fixture_blocks(spec, nominal);
   const std::string path = (fs::path(dir) / (name + ".xml")).string();
-  write_text_file(path, cell_mjcf(robot, spec, &assets));
+  write_text_file(path, cell_mjcf(robot, laid_out, &assets));
   check_mjcf(path);
   return path;
 }
@@ -327,6 +530,193 @@ void write_ground_truth(const Casting& casting, const Pose& X_WC, const std::str
   }
   os << "\n  ]\n}\n";
   write_text_file((fs::path(dir) / "flash_truth.json").string(), os.str());
+}
+
+std::vector<TriangleMesh> split_mesh(const TriangleMesh& mesh, std::size_t max_faces) {
+  FT_ASSERT(max_faces > 0);
+  const std::size_t n = mesh.triangles.size();
+  if (n <= max_faces) return {mesh};
+  const std::size_t parts = (n + max_faces - 1) / max_faces;
+  std::vector<TriangleMesh> out(parts);
+  std::vector<int> index(mesh.vertices.size());
+  for (std::size_t k = 0; k < parts; ++k) {
+    // Round robin: part k takes triangles k, k + parts, ...; each part indexes its own vertices.
+    TriangleMesh& part = out[k];
+    std::fill(index.begin(), index.end(), -1);
+    part.triangles.reserve(n / parts + 1);
+    for (std::size_t t = k; t < n; t += parts) {
+      Eigen::Vector3i tri;
+      for (int c = 0; c < 3; ++c) {
+        const int v = mesh.triangles[t][c];
+        if (index[v] < 0) {
+          index[v] = static_cast<int>(part.vertices.size());
+          part.vertices.push_back(mesh.vertices[v]);
+        }
+        tri[c] = index[v];
+      }
+      part.triangles.push_back(tri);
+    }
+  }
+  return out;
+}
+
+std::string mesh_part_name(const std::string& base, std::size_t k) {
+  return k == 0 ? base : base + "_part" + std::to_string(k);
+}
+
+bool is_mesh_part(const std::string& name, const std::string& base) {
+  if (name == base) return true;
+  const std::string prefix = base + "_part";
+  if (name.size() <= prefix.size() || name.compare(0, prefix.size(), prefix) != 0) return false;
+  return std::all_of(name.begin() + static_cast<std::ptrdiff_t>(prefix.size()), name.end(),
+                     [](unsigned char ch) { return std::isdigit(ch) != 0; });
+}
+
+std::vector<FixtureBlock> fixture_blocks(const CellSpec& spec, const TriangleMesh& nominal_C) {
+  Vec3 lo, hi;
+  nominal_C.bounds(lo, hi);
+  std::vector<FixtureBlock> blocks = fixture_blocks_from_bounds(spec, lo, hi);
+  if (nominal_C.triangles.empty()) return blocks;
+  const TriangleMesh mesh_W = nominal_C.transformed(spec.X_WC);
+  for (std::size_t i = 0; i < blocks.size(); ++i) {
+    // Blocks beside the bounds are clear of an upright casting; a tilted one may reach over or
+    // under them. Then slide the block outward along its x axis past everything of the casting
+    // within its width and height, plus the gap (blocks[0] is on the -x side).
+    FixtureBlock& b = blocks[i];
+    const TriangleMesh mesh_F = in_box_frame(mesh_W, b.X_WF);
+    if (!solid_meets_box(mesh_F, b.half_size)) continue;
+    double lo_x = std::numeric_limits<double>::infinity(), hi_x = -lo_x;
+    for (const auto& t : mesh_F.triangles) {
+      double t_lo = 0, t_hi = 0;
+      if (clipped_x_range(mesh_F.vertices[t[0]], mesh_F.vertices[t[1]], mesh_F.vertices[t[2]],
+                          b.half_size, t_lo, t_hi)) {
+        lo_x = std::min(lo_x, t_lo);
+        hi_x = std::max(hi_x, t_hi);
+      }
+    }
+    // A closed mesh always crosses the band (the band leaves the part somewhere).
+    if (!(hi_x >= lo_x)) continue;
+    const double shift = i > 0 ? hi_x + kFixtureGap + b.half_size.x()
+                               : lo_x - kFixtureGap - b.half_size.x();
+    b.X_WF.translation() += b.X_WF.linear().col(0) * shift;
+  }
+  return blocks;
+}
+
+void check_cell_layout(const CellSpec& spec, const TriangleMesh& nominal_C,
+                       const CellCheckParams& params) {
+  if (nominal_C.triangles.empty())
+    throw ArgumentError("check_cell_layout: expected the casting's nominal mesh, got no triangles");
+  const double tol = params.tolerance;
+  const Pose X_TableW = spec.X_WTable.inverse();
+  const Vec3& ts = spec.table_size;
+  const double ax = ts.x() / 2, ay = ts.y() / 2;
+  const std::string table_top =
+      "the table top (" + m3(ts.x()) + " x " + m3(ts.y()) + " m)";
+
+  // The casting's footprint: its placed mesh in the table frame {Table} (z up from the top).
+  const TriangleMesh mesh_W = nominal_C.transformed(spec.X_WC);
+  Vec3 lo_T = Vec3::Constant(std::numeric_limits<double>::infinity()), hi_T = -lo_T;
+  for (const Vec3& v : mesh_W.vertices) {
+    const Vec3 p = X_TableW * v;
+    lo_T = lo_T.cwiseMin(p);
+    hi_T = hi_T.cwiseMax(p);
+  }
+  const double overhang = std::max({-ax - lo_T.x(), hi_T.x() - ax, -ay - lo_T.y(), hi_T.y() - ay});
+  if (overhang > tol) {
+    const Vec3 ext = hi_T - lo_T;
+    const std::string footprint = "the casting's footprint (" + m3(ext.x()) + " x " +
+                                  m3(ext.y()) + " m at its placement, x " + m3(lo_T.x()) +
+                                  ".." + m3(hi_T.x()) + ", y " + m3(lo_T.y()) + ".." +
+                                  m3(hi_T.y()) + " m from the table's centre)";
+    if (ext.x() > ts.x() + tol || ext.y() > ts.y() + tol)
+      throw ConfigError("cell.table.size: expected " + footprint + " to fit on " + table_top +
+                        ", got it over the edge by " + length_text(overhang));
+    throw ConfigError("casting.placement: expected " + footprint + " within " + table_top +
+                      ", got it over the edge by " + length_text(overhang) +
+                      " (move the casting towards the centre)");
+  }
+  if (std::abs(lo_T.z()) > tol)
+    throw ConfigError("casting.placement: expected the casting resting on the table top, got its "
+                      "lowest point " + length_text(std::abs(lo_T.z())) +
+                      (lo_T.z() > 0 ? " above" : " below") + " the top surface");
+
+  // Fixture blocks: on the table top, clear of the casting.
+  const std::vector<FixtureBlock> blocks =
+      spec.fixtures.empty() ? fixture_blocks(spec, nominal_C) : spec.fixtures;
+  for (const FixtureBlock& b : blocks) {
+    const Pose X_TableF = X_TableW * b.X_WF;
+    const Vec3 c_T = X_TableF.translation();
+    double bottom = std::numeric_limits<double>::infinity();
+    for (int k = 0; k < 8; ++k) {
+      const Vec3 corner(k & 1 ? b.half_size.x() : -b.half_size.x(),
+                        k & 2 ? b.half_size.y() : -b.half_size.y(),
+                        k & 4 ? b.half_size.z() : -b.half_size.z());
+      bottom = std::min(bottom, (X_TableF * corner).z());
+    }
+    const std::string what = "fixture block '" + b.name + "' (centre " + m3(c_T.x()) + " " +
+                             m3(c_T.y()) + " m from the table's centre)";
+    if (bottom > tol)
+      throw ConfigError("casting.placement: expected " + what +
+                        " standing on the table top, got it floating " + length_text(bottom) +
+                        " above it");
+    if (bottom < -tol)
+      throw ConfigError("casting.placement: expected " + what +
+                        " standing on the table top, got it " + length_text(-bottom) +
+                        " into the table");
+    if (std::abs(c_T.x()) > ax + tol || std::abs(c_T.y()) > ay + tol)
+      throw ConfigError("casting.placement: expected " + what + " over " + table_top +
+                        ", got it off the table's edge (it would float; move the casting towards "
+                        "the centre or enlarge cell.table.size)");
+    const Vec3 shrunk = (b.half_size - Vec3::Constant(tol)).cwiseMax(0.0);
+    const TriangleMesh mesh_F = in_box_frame(mesh_W, b.X_WF);
+    if (solid_meets_box(mesh_F, shrunk)) {
+      const double depth = overlap_depth(mesh_F, b.half_size);
+      throw ConfigError("casting.placement: expected " + what +
+                        " clear of the casting's nominal mesh (tolerance " + length_text(tol) +
+                        "), got them overlapping" +
+                        (depth > tol ? " by " + length_text(depth) : std::string()));
+    }
+  }
+
+  // Robot base and scanner head against the table's volume: its top's footprint from the floor
+  // up to the top surface (plate and legs).
+  const double table_height = spec.X_WTable.translation().z();
+  Pose X_WTableBox = spec.X_WTable;
+  X_WTableBox.translation() = spec.X_WTable * Vec3(0, 0, -table_height / 2);
+  const Vec3 table_half(ax, ay, table_height / 2);
+  const Vec3 p_WB = spec.X_WB.translation();
+  const double pedestal_top = p_WB.z() - spec.base_height;
+  const Pose X_WPedestal(Eigen::Translation3d(p_WB.x(), p_WB.y(), pedestal_top / 2));
+  const double pedestal = box_box_overlap(
+      X_WPedestal, Vec3(kPedestalHalfWidth, kPedestalHalfWidth, pedestal_top / 2), X_WTableBox,
+      table_half);
+  if (pedestal > tol)
+    throw ConfigError("cell.robot_base: expected the robot's pedestal (" +
+                      m3(2 * kPedestalHalfWidth) + " x " + m3(2 * kPedestalHalfWidth) +
+                      " m under the base at x " + m3(p_WB.x()) + ", y " + m3(p_WB.y()) +
+                      " m) clear of the worktable (cell.table), got them overlapping by " +
+                      length_text(pedestal));
+  // The base housing (a cylinder about z_B) by its bounding box.
+  const double housing_len = std::abs(spec.base_height - kBaseHousingTop);
+  const Pose X_WHousing =
+      spec.X_WB * Pose(Eigen::Translation3d(0, 0, -(spec.base_height + kBaseHousingTop) / 2));
+  const double housing = box_box_overlap(
+      X_WHousing, Vec3(kBaseHousingRadius, kBaseHousingRadius, housing_len / 2), X_WTableBox,
+      table_half);
+  if (housing > tol)
+    throw ConfigError("cell.robot_base: expected the robot's base housing (d" +
+                      m3(2 * kBaseHousingRadius) + " m, " + m3(housing_len) +
+                      " m tall) clear of the worktable (cell.table), got them overlapping by " +
+                      length_text(housing));
+  const Pose X_WHead = spec.X_WM * Pose(Eigen::Translation3d(kScannerHeadCentre_M));
+  const double head = box_box_overlap(X_WHead, kScannerHeadHalfSize, X_WTableBox, table_half);
+  if (head > tol)
+    throw ConfigError("cell.scanner_mount: expected the scanner head (" +
+                      m3(2 * kScannerHeadHalfSize.x()) + " x " + m3(2 * kScannerHeadHalfSize.y()) +
+                      " x " + m3(2 * kScannerHeadHalfSize.z()) +
+                      " m) clear of the worktable (cell.table), got them overlapping by " +
+                      length_text(head));
 }
 
 }  // namespace flashtwin::sim

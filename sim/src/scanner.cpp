@@ -9,6 +9,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <exception>
 #include <limits>
@@ -50,7 +51,13 @@ void check_embree(RTCDevice device, const char* what) {
 
 }  // namespace
 
-ScanScene::ScanScene(const std::vector<SceneMesh>& meshes) : impl_(std::make_unique<Impl>()) {
+std::string default_embree_config() {
+  const char* env = std::getenv("FLASHTWIN_EMBREE_CONFIG");
+  return env && *env ? std::string(env) : std::string("max_isa=avx2");
+}
+
+ScanScene::ScanScene(const std::vector<SceneMesh>& meshes, const std::string& embree_config)
+    : impl_(std::make_unique<Impl>()) {
   // Validate before touching Embree, so bad input never leaves a half-built scene behind.
   std::size_t total = 0;
   for (std::size_t i = 0; i < meshes.size(); ++i) {
@@ -73,10 +80,12 @@ ScanScene::ScanScene(const std::vector<SceneMesh>& meshes) : impl_(std::make_uni
     throw ArgumentError("scene: expected at least one triangle, got 0 (in " +
                         std::to_string(meshes.size()) + " meshes)");
 
-  impl_->device.reset(rtcNewDevice(nullptr));
+  const std::string config = embree_config.empty() ? default_embree_config() : embree_config;
+  impl_->device.reset(rtcNewDevice(config.c_str()));
   if (!impl_->device)
-    throw std::runtime_error("Embree: cannot create a device (error " +
-                             std::to_string(static_cast<int>(rtcGetDeviceError(nullptr))) + ")");
+    throw ArgumentError("Embree device configuration: expected a valid rtcNewDevice string, got '" +
+                        config + "' (error " +
+                        std::to_string(static_cast<int>(rtcGetDeviceError(nullptr))) + ")");
   RTCDevice dev = impl_->device.get();
   impl_->scene.reset(rtcNewScene(dev));
   check_embree(dev, "creating the scene");
@@ -350,6 +359,38 @@ struct ScanContext {
   float cos_max_incidence = 0;
 };
 
+/// True when Embree may be handed this ray: finite origin, finite non-zero direction and
+/// 0 <= tnear <= tfar < inf. Debian's Embree asserts this for every active lane of a packet,
+/// and elsewhere such a lane is undefined behaviour.
+bool ray_is_valid(const Vec3f& org, const Vec3f& dir, float tnear, float tfar) {
+  return org.allFinite() && dir.allFinite() && dir.squaredNorm() > 0.0f && tnear >= 0.0f &&
+         tnear <= tfar && std::isfinite(tfar);
+}
+
+/// Writes one lane of a ray packet. Every lane is written, also the inactive ones, so that no
+/// stale or uninitialised value ever reaches Embree; a lane whose ray is not valid is masked.
+template <class RayK>
+void set_lane(RayK& r, int* valid, int i, bool active, const Vec3f& org, const Vec3f& dir,
+              float tnear, float tfar) {
+  const bool ok = active && ray_is_valid(org, dir, tnear, tfar);
+  // A benign ray for masked lanes: from the origin along +z over an empty interval.
+  const Vec3f o = ok ? org : Vec3f::Zero();
+  const Vec3f d = ok ? dir : Vec3f::UnitZ();
+  r.org_x[i] = o.x();
+  r.org_y[i] = o.y();
+  r.org_z[i] = o.z();
+  r.dir_x[i] = d.x();
+  r.dir_y[i] = d.y();
+  r.dir_z[i] = d.z();
+  r.tnear[i] = ok ? tnear : 0.0f;
+  r.tfar[i] = ok ? tfar : 0.0f;
+  r.time[i] = 0.0f;
+  r.mask[i] = ~0u;
+  r.id[i] = static_cast<unsigned>(i);
+  r.flags[i] = 0;
+  valid[i] = ok ? -1 : 0;
+}
+
 /// Traces the rays of one row: laser hits, incidence and camera visibility, in packets of 16.
 /// Fills s.t, s.ret, s.cos_inc, s.n_W, s.label for rays [0, cols).
 void trace_row(const ScanContext& C, const Vec3f& o_W, const Vec3f& cam_W, const Vec3f* dir_W,
@@ -365,35 +406,26 @@ void trace_row(const ScanContext& C, const Vec3f& o_W, const Vec3f& cam_W, const
 
   for (int j0 = 0; j0 < cols; j0 += 16) {
     const int n = std::min(16, cols - j0);
+    bool any_laser = false;
     for (int i = 0; i < 16; ++i) {
-      valid[i] = i < n ? -1 : 0;
-      const Vec3f& d = dir_W[i < n ? j0 + i : j0];
-      rh.ray.org_x[i] = o_W.x();
-      rh.ray.org_y[i] = o_W.y();
-      rh.ray.org_z[i] = o_W.z();
-      rh.ray.dir_x[i] = d.x();
-      rh.ray.dir_y[i] = d.y();
-      rh.ray.dir_z[i] = d.z();
-      rh.ray.tnear[i] = 0.0f;
       // Beyond range_max nothing matters; nearer than range_min still blocks the laser.
-      rh.ray.tfar[i] = range_max;
-      rh.ray.time[i] = 0.0f;
-      rh.ray.mask[i] = ~0u;
-      rh.ray.id[i] = static_cast<unsigned>(i);
-      rh.ray.flags[i] = 0;
+      const bool active = i < n;
+      set_lane(rh.ray, valid, i, active, o_W, active ? dir_W[j0 + i] : Vec3f::UnitZ(), 0.0f,
+               range_max);
+      any_laser = any_laser || valid[i];
       rh.hit.geomID[i] = RTC_INVALID_GEOMETRY_ID;
       rh.hit.instID[0][i] = RTC_INVALID_GEOMETRY_ID;
     }
-    rtcIntersect16(valid, C.scene, &ictx, &rh);
+    if (any_laser) rtcIntersect16(valid, C.scene, &ictx, &rh);
 
     bool any_shadow = false;
     for (int i = 0; i < 16; ++i) {
-      svalid[i] = 0;
+      set_lane(sh, svalid, i, false, Vec3f::Zero(), Vec3f::UnitZ(), 0.0f, 0.0f);
       if (i >= n) continue;
       const int j = j0 + i;
       s.t[j] = -1.0f;
       s.ret[j] = 0;
-      if (rh.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID) continue;
+      if (!valid[i] || rh.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID) continue;
       const float t = rh.ray.tfar[i];
       if (t < range_min) continue;  // too close to measure
       s.t[j] = t;
@@ -418,20 +450,8 @@ void trace_row(const ScanContext& C, const Vec3f& o_W, const Vec3f& cam_W, const
       to_cam /= dist;
       // Start the camera ray just off the surface so it does not hit the lit triangle again.
       const float eps = 1e-5f * (1.0f + p.cwiseAbs().maxCoeff());
-      const Vec3f q = p + eps * ng;
-      sh.org_x[i] = q.x();
-      sh.org_y[i] = q.y();
-      sh.org_z[i] = q.z();
-      sh.dir_x[i] = to_cam.x();
-      sh.dir_y[i] = to_cam.y();
-      sh.dir_z[i] = to_cam.z();
-      sh.tnear[i] = 0.0f;
-      sh.tfar[i] = std::max(0.0f, dist - eps);
-      sh.time[i] = 0.0f;
-      sh.mask[i] = ~0u;
-      sh.id[i] = static_cast<unsigned>(i);
-      sh.flags[i] = 0;
-      svalid[i] = -1;
+      set_lane(sh, svalid, i, true, p + eps * ng, to_cam, 0.0f, std::max(0.0f, dist - eps));
+      if (!svalid[i]) continue;
       any_shadow = true;
       s.n_W[j] = ng;
       s.cos_inc[j] = c;

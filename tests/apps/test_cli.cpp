@@ -278,12 +278,12 @@ nlohmann::json without_timings(nlohmann::json m) {
 }  // namespace
 
 TEST(Cli, RunIsDeterministicAndWritesTheClosedLoopOutputs) {
-  // The user-mesh scenario end to end, twice with the same seed: identical metrics (timings
-  // aside), all DESIGN.md keys present, the report self-contained.
+  // The user-mesh scenario end to end, twice with the same seed, on 1 and on 2 threads:
+  // identical metrics (timings aside), all DESIGN.md keys present, the report self-contained.
   const std::string a = ftest::temp_dir("run_a"), b = ftest::temp_dir("run_b");
   const std::string sc = ftest::source_path("scenarios/user_mesh.yaml");
-  const CliRun ra = run("-q run " + sc + " -o " + a);
-  const CliRun rb = run("-q run " + sc + " -o " + b + " --no-report");
+  const CliRun ra = run("-q run " + sc + " -o " + a + " --threads 1");
+  const CliRun rb = run("-q run " + sc + " -o " + b + " --threads 2 --no-report");
   ASSERT_EQ(ra.code, 0) << ra.err;
   ASSERT_EQ(rb.code, 0) << rb.err;
   const auto ma = nlohmann::json::parse(slurp(a + "/metrics.json"));

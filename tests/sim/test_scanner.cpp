@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <string>
 #include <vector>
@@ -680,4 +681,72 @@ TEST(MujocoScene, BadArgumentsThrow) {
   EXPECT_THROW(tessellate_geoms(nullptr, d.get(), {}, kTruthBody), ArgumentError);
   EXPECT_THROW(tessellate_geom(m.get(), d.get(), m->ngeom), ArgumentError);
   EXPECT_THROW(tessellate_geom(m.get(), d.get(), 0, 2), ArgumentError);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Degenerate views under every Embree kernel path
+// ---------------------------------------------------------------------------------------------
+
+// Rays Embree must never see as invalid: packets with 1 or 17 active lanes (the rest masked),
+// a single ray per profile, a sensor sitting on the surface it looks at (zero-length camera
+// rays), rays grazing a plane edge-on and a camera exactly at the lit point. Each kernel path
+// that this CPU can run (Embree caps the ISA at what the CPU has) must give the same returns.
+TEST(Scanner, DegenerateViewsGiveTheSameReturnsOnEveryKernelPath) {
+  struct Case {
+    const char* what;
+    std::vector<SceneMesh> meshes;
+    ScanParams params;
+    std::size_t expected;  // points with quiet noise
+  };
+  std::vector<Case> cases;
+  // One active lane per packet; the 15 others masked.
+  cases.push_back({"one ray per profile",
+                   {{rect(at(Vec3(0, 0, 0.3)), 0.5, 0.5), kTruthBody, "plane"}},
+                   params_with(line_view(1, 0.1, 0.02), quiet()),
+                   41});
+  // 17 rays: the second packet has one active lane.
+  cases.push_back({"17 rays per profile",
+                   {{rect(at(Vec3(0, 0, 0.3)), 0.5, 0.5), kTruthBody, "plane"}},
+                   params_with(line_view(17, 0.1, 0.0), quiet()),
+                   17});
+  // The plane contains the sensor's origin and the rays: every ray grazes it edge-on.
+  cases.push_back({"rays in the plane",
+                   {{rect(rot_x(M_PI / 2, Vec3(0, 0, 0)), 0.5, 0.5), kTruthBody, "plane"}},
+                   params_with(line_view(33, 0.1, 0.0), quiet()),
+                   0});
+  // Coaxial camera (baseline 0) on a plane at the sensor's own origin: the laser starts on the
+  // surface (range 0 < range_min) and the camera ray would have zero length.
+  {
+    ScanView v = line_view(9, 0.1, 0.0);
+    v.line.baseline = 0;
+    cases.push_back({"sensor on the surface",
+                     {{rect(at(Vec3(0, 0, 0)), 0.5, 0.5), kTruthBody, "plane"}},
+                     params_with(v, quiet()),
+                     0});
+  }
+  for (Case& c : cases) {
+    std::vector<std::size_t> sizes;
+    for (const char* config : {"max_isa=sse4.2", "max_isa=avx2", "max_isa=avx512"}) {
+      const ScanScene scene(c.meshes, config);
+      const ScanResult r = scan(scene, Pose::Identity(), c.params);
+      sizes.push_back(r.cloud_M.size());
+      for (const auto& q : r.cloud_M.points) ASSERT_TRUE(q.allFinite()) << c.what << " " << config;
+      EXPECT_EQ(r.cloud_M.size(), c.expected) << c.what << " " << config;
+    }
+    EXPECT_EQ(sizes[0], sizes[1]) << c.what;
+    EXPECT_EQ(sizes[1], sizes[2]) << c.what;
+  }
+}
+
+TEST(Scanner, DefaultKernelPathIsPinnedAndOverridable) {
+  const char* saved = std::getenv("FLASHTWIN_EMBREE_CONFIG");
+  const std::string saved_value = saved ? saved : "";
+  unsetenv("FLASHTWIN_EMBREE_CONFIG");
+  EXPECT_EQ(default_embree_config(), "max_isa=avx2");
+  setenv("FLASHTWIN_EMBREE_CONFIG", "max_isa=sse4.2", 1);
+  EXPECT_EQ(default_embree_config(), "max_isa=sse4.2");
+  if (saved)
+    setenv("FLASHTWIN_EMBREE_CONFIG", saved_value.c_str(), 1);
+  else
+    unsetenv("FLASHTWIN_EMBREE_CONFIG");
 }

@@ -67,12 +67,13 @@ class ConfigNode {
 
   /// Throws ConfigError "<file>: <path>: <msg>".
   [[noreturn]] void fail(const std::string& msg) const;
+  /// What the node holds, for "got ...": the scalar as written, "a list", "a mapping".
+  std::string describe() const;
 
  private:
   ConfigNode(YAML::Node node, std::string file, std::string path,
              std::shared_ptr<std::set<std::string>> used);
   std::string child_path(const std::string& key) const;
-  std::string describe() const;  // the scalar as written, for "got ..."
 
   YAML::Node node_;
   std::string file_, path_;

@@ -21,7 +21,7 @@ namespace flashtwin::pipeline {
 struct RunOptions {
   std::string out_dir;        ///< everything is written here ("" = nothing written)
   bool write_scan = true;     ///< scan.ply (and the labelled scans)
-  int threads = 2;            ///< scanner threads
+  int threads = 2;            ///< threads of the scanner and of perception (results identical for any count)
   bool report = true;         ///< report.html with renders and plots (needs out_dir)
   /// MP4 of the execution when video.path is set (slows execution down: timings include it).
   VideoOptions video;

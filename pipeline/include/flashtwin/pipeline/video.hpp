@@ -3,11 +3,11 @@
 // MP4). The flash is drawn from the process model's voxel grid, so it visibly disappears where
 // the burr has passed: the cell's static flash mesh is hidden and a fixed sample of the flash
 // voxels is drawn as small spheres for as long as their voxel still holds flash.
-#include <cstdio>
 #include <memory>
 #include <string>
 #include <vector>
 
+#include "flashtwin/core/subprocess.hpp"
 #include "flashtwin/sim/executor.hpp"
 #include "flashtwin/sim/process.hpp"
 
@@ -26,6 +26,10 @@ struct VideoOptions {
   int flash_points = 1200;                ///< flash voxels drawn (each sphere costs render time)
   double point_radius = 0.0009;           ///< [m]
 };
+
+/// ffmpeg's argument vector for raw RGB24 frames of the options' size on standard input,
+/// encoded to H.264 MP4 at options.path (passed as one argument: never through a shell).
+std::vector<std::string> ffmpeg_arguments(const VideoOptions& options);
 
 /// Collects frames during execution. Not copyable; one per run.
 class VideoRecorder {
@@ -49,7 +53,7 @@ class VideoRecorder {
   VideoOptions opt_;
   double speedup_ = 1, next_t_ = 0;
   std::size_t frames_ = 0;
-  std::FILE* pipe_ = nullptr;
+  std::unique_ptr<PipedProcess> ffmpeg_;
   mjModel* model_ = nullptr;  ///< render copy (flash mesh hidden)
   std::unique_ptr<sim::OffscreenRenderer> renderer_;
   std::vector<Vec3> flash_sample_C_;

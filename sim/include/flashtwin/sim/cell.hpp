@@ -2,12 +2,22 @@
 // The MuJoCo cell: robot on a pedestal, worktable, casting, cameras and lights, written as a
 // self-contained MJCF (DESIGN.md contract: joints joint1..joint6, sites flange and tcp, body
 // casting).
+#include <cstddef>
 #include <string>
+#include <vector>
 
 #include "flashtwin/core/robot.hpp"
 #include "flashtwin/sim/casting.hpp"
 
 namespace flashtwin::sim {
+
+/// A fixture block: a box standing on the worktable top beside the casting (drawn and scanned;
+/// no MuJoCo contact, like the casting).
+struct FixtureBlock {
+  std::string name;                     ///< geom name in the MJCF
+  Pose X_WF = Pose::Identity();         ///< box centre and axes {F} in {W}
+  Vec3 half_size{0.012, 0.03, 0.0125};  ///< [m] half extents along the axes of {F}
+};
 
 /// Geometry of the cell (world frame {W}: z up, floor at z = 0).
 struct CellSpec {
@@ -26,20 +36,48 @@ struct CellSpec {
   /// Position-actuator stiffness per joint [N·m/rad]; torque-limited by the robot's limits.
   std::array<double, kNumJoints> kp{20000, 20000, 10000, 2000, 1500, 800};
   std::array<double, kNumJoints> damping{300, 300, 150, 20, 15, 8};  ///< joint damping [N·m·s/rad]
+  /// Fixture blocks; empty: the two locating blocks of fixture_blocks(), laid out beside the
+  /// casting when the cell is written.
+  std::vector<FixtureBlock> fixtures;
 };
+
+/// MuJoCo 2.2.2 refuses a model with a mesh of more faces than this ("number of faces should be
+/// between 1 and 200000").
+constexpr std::size_t kMaxMeshFaces = 200000;
+
+/// Splits a mesh into ceil(F / max_faces) parts of at most max_faces triangles each, keeping
+/// every triangle exactly (same corners, same winding); each part holds only the vertices it
+/// uses. Part k of n takes triangles k, k + n, k + 2n, ...: every part spans the whole surface,
+/// because MuJoCo computes a volume for each mesh and refuses a flat one. A mesh within the
+/// limit comes back unchanged as the only part. @pre max_faces > 0.
+std::vector<TriangleMesh> split_mesh(const TriangleMesh& mesh,
+                                     std::size_t max_faces = kMaxMeshFaces);
+
+/// Name of part k of a split mesh (its asset, geom and file stem): `base` for part 0, so an
+/// unsplit mesh keeps its name, and `base_part<k>` for the others.
+std::string mesh_part_name(const std::string& base, std::size_t k);
+
+/// True when `name` is `base` or a part of it (`base_part<k>`). The casting's geoms
+/// `casting_body` and `casting_flash` are several geoms (of body `casting`) when their mesh
+/// has more than kMaxMeshFaces faces: find them all with this, or by body.
+bool is_mesh_part(const std::string& name, const std::string& base);
 
 /// MJCF text of the robot's body chain (body `base` with links link1..link6, tool body `tool`,
 /// sites `flange` and `tcp`), to be placed inside <worldbody>; `X_WB` places the base.
 std::string arm_mjcf(const RobotModel& robot, const Pose& X_WB, const CellSpec& spec);
 
-/// Mesh files of the casting the MJCF refers to (paths relative to the MJCF's folder).
+/// Mesh files of the casting the MJCF refers to (paths relative to the MJCF's folder). A mesh
+/// over kMaxMeshFaces faces is several files (split_mesh), each becoming a mesh asset and a geom
+/// named by mesh_part_name.
 struct CastingAssets {
-  std::string nominal_stl;  ///< the casting body
-  std::string flash_stl;    ///< all fins (empty: none)
+  std::vector<std::string> nominal_stl;  ///< the casting body: one file per part
+  std::vector<std::string> flash_stl;    ///< all fins: one file per part (empty: no flash)
   Vec3 lo = Vec3(-0.1, -0.1, 0), hi = Vec3(0.1, 0.1, 0.05);  ///< nominal bounds in {C} [m]
 };
 
 /// MJCF text of the whole cell; without assets the casting is a box of the default bounds.
+/// The fixture is spec.fixtures, or when that is empty two blocks 8 mm outside the casting's
+/// bounds along its x axis (fixture_blocks without the mesh test).
 std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec,
                       const CastingAssets* casting = nullptr);
 
@@ -60,14 +98,19 @@ struct CellFiles {
 
 /// Writes the cell: DIR/cell.xml, DIR/meshes/*.stl, DIR/robot.urdf, DIR/casting_cad.stl and the
 /// ground truth (DIR/truth/: fins.stl, flash_truth.json with each fin's volume and root
-/// polyline in {C} and {W}); then loads cell.xml with MuJoCo to prove it compiles.
+/// polyline in {C} and {W}); then loads cell.xml with MuJoCo to prove it compiles. Meshes over
+/// kMaxMeshFaces faces go to MuJoCo split (meshes/casting_nominal.stl,
+/// casting_nominal_part1.stl, ...: mesh_part_name);
+/// casting_cad.stl and the truth keep the exact, whole meshes. The fixture is spec.fixtures or
+/// fixture_blocks(spec, casting.nominal). It does not check the layout (check_cell_layout).
 /// @throws IoError (cannot write), InputError (MuJoCo rejects it).
 CellFiles write_cell(const RobotModel& robot, const CellSpec& spec, const Casting& casting,
                      const std::string& dir);
 
 /// Writes DIR/<name>.xml: the cell of write_cell (which must have written DIR before: the nominal
 /// mesh is reused) with the casting's flash replaced by `flash_C` (in {C}; empty: no flash),
-/// saved as DIR/meshes/<name>_flash.stl. Used for the "after grinding" renders. Returns the path.
+/// saved as DIR/meshes/<name>_flash.stl (split like write_cell's meshes when over
+/// kMaxMeshFaces faces). Used for the "after grinding" renders. Returns the path.
 /// @throws IoError, InputError (MuJoCo rejects it).
 std::string write_cell_variant(const RobotModel& robot, const CellSpec& spec,
                                const TriangleMesh& nominal, const TriangleMesh& flash_C,
@@ -85,5 +128,37 @@ Pose rest_on_table(const CellSpec& spec, const TriangleMesh& nominal, double x, 
 
 /// Compiles an MJCF file with MuJoCo. @throws InputError with MuJoCo's message.
 ModelSummary check_mjcf(const std::string& path);
+
+/// The default fixture of a placed casting: two locating blocks (24 x 60 x 25 mm, names
+/// fixture_left and fixture_right) standing on the table top on either side of the casting
+/// along its x axis (turned with its yaw about the table normal), centred on its y extent and
+/// 8 mm outside its bounds in {C}. A block that would still cut into the placed mesh (a tilted
+/// casting) slides outward along its x axis until it is 8 mm clear of the mesh's part within
+/// the block's width and height. Reads spec.X_WTable and spec.X_WC; ignores spec.fixtures.
+std::vector<FixtureBlock> fixture_blocks(const CellSpec& spec, const TriangleMesh& nominal_C);
+
+/// Tolerances of check_cell_layout.
+struct CellCheckParams {
+  /// [m] slack of every test: overhang of the casting past the table's edge, fixture blocks
+  /// cutting into the casting or the table top or standing above it, robot base and scanner
+  /// head overlapping the table (numerical noise; tessellated curves lie inside the true ones).
+  double tolerance = 1e-4;
+};
+
+/// Checks that the cell makes sense before anything runs in it:
+///  - the casting's footprint (its placed nominal mesh in the table plane) lies on the table top
+///    and its lowest point on the top surface;
+///  - every fixture block (spec.fixtures, or fixture_blocks when empty) stands on the table top
+///    (bottom on the surface, centre over the top) and does not cut into the casting's nominal
+///    mesh (exact box-triangle and inside tests against the mesh);
+///  - the robot base (pedestal and base housing) and the scanner head are clear of the table's
+///    volume (its top's footprint from the floor up to the top surface).
+/// Errors name the scenario field to change (cell.table.size, casting.placement,
+/// cell.robot_base, cell.scanner_mount), on one line, without the file (the caller adds it).
+/// pipeline::setup_cell runs it for every scenario's cell.
+/// @pre nominal_C is closed and outward-oriented (as make_casting makes it).
+/// @throws ConfigError on the first failed test; ArgumentError for a mesh with no triangles.
+void check_cell_layout(const CellSpec& spec, const TriangleMesh& nominal_C,
+                       const CellCheckParams& params = {});
 
 }  // namespace flashtwin::sim

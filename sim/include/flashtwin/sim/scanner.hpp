@@ -110,14 +110,22 @@ struct ScanResult {
   double rays_per_s() const { return time_s > 0 ? rays / time_s : 0; }
 };
 
+/// Embree's device configuration used when none is given: "max_isa=avx2", so that every
+/// machine of this kind traces with the same kernels (Embree otherwise picks AVX-512 where the
+/// CPU has it and AVX2 elsewhere, and the scans then differ in the last bits). The environment
+/// variable FLASHTWIN_EMBREE_CONFIG replaces it (e.g. "max_isa=sse4.2" to try another path).
+std::string default_embree_config();
+
 /// Embree scene over a set of posed meshes; built once, scanned many times (scan() may be
 /// called from several threads at once).
 class ScanScene {
  public:
-  /// Copies the meshes into Embree (float vertices) and builds the BVH.
+  /// Copies the meshes into Embree (float vertices) and builds the BVH. `embree_config` is
+  /// Embree's device configuration string (`man rtcNewDevice`); empty means
+  /// default_embree_config().
   /// @throws ArgumentError when there is no triangle at all, or a mesh has a non-finite
-  /// vertex or an out-of-range index (naming the mesh).
-  explicit ScanScene(const std::vector<SceneMesh>& meshes);
+  /// vertex or an out-of-range index (naming the mesh), or Embree refuses the configuration.
+  explicit ScanScene(const std::vector<SceneMesh>& meshes, const std::string& embree_config = {});
   ~ScanScene();
   /// Triangles in the scene.
   std::size_t num_triangles() const;

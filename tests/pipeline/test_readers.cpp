@@ -1,0 +1,101 @@
+// Hostile input to the readers: each case was found by the fuzzers in fuzz/ (or by reading the
+// reader while writing them) and must now end as the project's InputError (exit 2).
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <string>
+
+#include "flashtwin/core/config.hpp"
+#include "flashtwin/core/errors.hpp"
+#include "flashtwin/core/mesh.hpp"
+#include "flashtwin/core/robot.hpp"
+#include "flashtwin/pipeline/paths_io.hpp"
+#include "flashtwin/pipeline/pose_json.hpp"
+#include "flashtwin/pipeline/scenario.hpp"
+#include "test_util.hpp"
+
+using namespace flashtwin;
+
+namespace {
+
+std::string write(const std::string& dir, const std::string& name, const std::string& text) {
+  const std::string p = dir + "/" + name;
+  std::ofstream(p, std::ios::binary) << text;
+  return p;
+}
+
+}  // namespace
+
+TEST(Readers, NumbersBeyondDoubleRangeAreInputErrors) {
+  // nlohmann throws out_of_range for 1e999; it used to escape as an internal failure (exit 1).
+  EXPECT_THROW(pipeline::read_paths_from_string(R"({"paths":[{"points":[[1e999,0,0]]}]})", "p.json"),
+               InputError);
+  EXPECT_THROW(pipeline::read_pose_from_string("[1e999,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]", "x.json"),
+               InputError);
+}
+
+TEST(Readers, PathsClosedMustBeABoolean) {
+  for (const char* v : {"\"yes\"", "1", "null"}) {
+    const std::string text =
+        std::string(R"({"paths":[{"points":[[0,0,0],[0.01,0,0]],"closed":)") + v + "}]}";
+    EXPECT_THROW(pipeline::read_paths_from_string(text, "p.json"), InputError) << v;
+  }
+}
+
+TEST(Readers, DeeplyNestedPoseIsRefusedNotARecursionCrash) {
+  const std::string deep = std::string(100000, '[') + std::string(100000, ']');
+  EXPECT_THROW(pipeline::read_pose_from_string(deep, "x.json"), InputError);
+}
+
+TEST(Readers, YamlKeysThatAreListsOrMapsAreConfigErrors) {
+  EXPECT_THROW(ConfigNode::load_string("[1]: 2\n", "a.yaml").keys(), ConfigError);
+  EXPECT_THROW(ConfigNode::load_string("a: {{x: 1}: 2}\n", "b.yaml"), ConfigError);
+  EXPECT_THROW(parse_robot("? [1, 2]\n: 3\n", "robot.yaml"), ConfigError);
+}
+
+TEST(Readers, YamlAliasCyclesAndExpansionBombsAreConfigErrors) {
+  EXPECT_THROW(ConfigNode::load_string("a: &v [*v]\n", "cycle.yaml"), ConfigError);
+  // Nine levels of nine-fold aliases expand to 9^9 nodes.
+  std::string bomb = "l0: &a0 [x, x, x, x, x, x, x, x, x]\n";
+  for (int i = 1; i <= 9; ++i) {
+    const std::string p = "*a" + std::to_string(i - 1);
+    bomb += "l" + std::to_string(i) + ": &a" + std::to_string(i) + " [" + p;
+    for (int k = 1; k < 9; ++k) bomb += ", " + p;
+    bomb += "]\n";
+  }
+  EXPECT_THROW(ConfigNode::load_string(bomb, "bomb.yaml"), ConfigError);
+}
+
+TEST(Readers, ScanViewThatIsNotAMappingIsAConfigError) {
+  const std::string dir = ftest::temp_dir("readers_views");
+  const std::string robot = ftest::source_path("models/robots/ft6.yaml");
+  for (const char* views : {"[1]", "[[]]", "[line]"}) {
+    const std::string sc = write(dir, "s.yaml",
+                                 "name: v\nrobot: " + robot + "\ncasting: {family: flanged_plate}\nscanner: {views: " + views + "}\n");
+    try {
+      pipeline::load_scenario(sc);
+      ADD_FAILURE() << views << ": accepted";
+    } catch (const ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find("scanner.views[0]"), std::string::npos) << e.what();
+    }
+  }
+}
+
+TEST(Readers, MillimetreMeshAtScaleOneWeldsLikeAMetreMesh) {
+  // Coordinates of several hundred units overflowed the 32-bit weld grid (undefined behaviour;
+  // in practice every vertex fell into one cell and welding went quadratic).
+  const std::string dir = ftest::temp_dir("readers_mm");
+  const TriangleMesh box_m = box_mesh(Vec3::Zero(), Vec3(0.2, 0.1, 0.05));
+  TriangleMesh box_mm = box_m;
+  for (auto& v : box_mm.vertices) v = 1000.0 * v + Vec3(300, -250, 40);
+  save_mesh(dir + "/box_mm.stl", box_mm);
+  const TriangleMesh loaded = load_mesh(dir + "/box_mm.stl");
+  EXPECT_EQ(loaded.vertices.size(), box_m.vertices.size());
+  EXPECT_EQ(loaded.triangles.size(), box_m.triangles.size());
+}
+
+TEST(Readers, ObjFaceIndexBeyondTheVerticesIsAnInputError) {
+  const std::string dir = ftest::temp_dir("readers_obj");
+  const std::string p = write(dir, "bad.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n");
+  EXPECT_THROW(load_mesh(p), InputError);
+}
