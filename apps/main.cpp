@@ -532,10 +532,13 @@ int cmd_run(const Common& c, const std::string& scenario_path, const std::string
 
 int cmd_sweep(const Common& c, const std::string& scenario_path, const std::string& out,
               const std::string& seeds, const std::vector<std::string>& sets,
-              const std::string& shard, int threads) {
+              const std::string& shard, int threads, bool seeds_given, bool check) {
   const ft::pipeline::Scenario sc = ft::pipeline::load_scenario(scenario_path, sets);
+  if (check && sc.expect_sweep.seeds.empty())
+    throw ft::ConfigError(scenario_path + ": --check: expected an expect_sweep: block (seeds and "
+                          "distribution bounds), got none");
   ft::pipeline::SweepOptions o;
-  o.seeds = ft::pipeline::parse_seeds(seeds);
+  o.seeds = check && !seeds_given ? sc.expect_sweep.seeds : ft::pipeline::parse_seeds(seeds);
   std::tie(o.shard, o.shards) = ft::pipeline::parse_shard(shard);
   o.threads = threads;
   o.out_dir = out;
@@ -557,6 +560,12 @@ int cmd_sweep(const Common& c, const std::string& scenario_path, const std::stri
     std::printf("%s", ft::read_text_file(r.table_path).c_str());
     std::printf("\nruns: %s\nsummary: %s, %s\n", r.jsonl_path.c_str(), r.summary_path.c_str(),
                 r.table_path.c_str());
+  }
+  if (check) {
+    // The distribution decides, not single runs: a refused or failed run lowers the pass rate.
+    const auto bad = ft::pipeline::check_sweep_expectations(sc.expect_sweep, r.summary);
+    for (const auto& b : bad) std::fprintf(stderr, "flashtwin: sweep expectation failed: %s\n", b.c_str());
+    return bad.empty() ? kExitOk : kExitFailed;
   }
   return r.failures ? kExitFailed : kExitOk;
 }
@@ -787,7 +796,12 @@ int main(int argc, char** argv) {
   sweep->add_option("scenario", scenario, "Scenario YAML")->required();
   sweep->add_option("-o,--output", out, "Output folder (runs.jsonl, summary.json, summary.md)")
       ->required();
-  sweep->add_option("--seeds", seeds_text, "Seeds: 1-100, 5, or 1-10,20,30-32")->capture_default_str();
+  auto* seeds_opt = sweep->add_option("--seeds", seeds_text, "Seeds: 1-100, 5, or 1-10,20,30-32")
+                        ->capture_default_str();
+  bool sweep_check = false;
+  sweep->add_flag("--check", sweep_check,
+                  "Regression check over the scenario's expect_sweep: seeds (unless --seeds is "
+                  "given): exit 1 unless its pass rate and percentile bounds hold");
   sweep->add_option("--set", sets, "Override a scenario key: dotted.key=value; repeatable");
   sweep->add_option("--shard", shard_text,
                     "Run only seeds i with i % N == k (k/N; e.g. $SLURM_ARRAY_TASK_ID/16)")
@@ -854,7 +868,8 @@ int main(int argc, char** argv) {
       return cmd_run(common, scenario, out, run_seed, sets, run_video, video_path, no_report,
                      run_check, run_threads);
     if (*sweep)
-      return cmd_sweep(common, scenario, out, seeds_text, sets, shard_text, sweep_threads);
+      return cmd_sweep(common, scenario, out, seeds_text, sets, shard_text, sweep_threads,
+                       seeds_opt->count() > 0, sweep_check);
     if (*plan)
       return cmd_plan(common, plan_paths, cad_path, pose_path, out, export_lang, plan_feed,
                       plan_lead, plan_tilt);

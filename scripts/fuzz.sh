@@ -67,6 +67,10 @@ done
 # clang 14 with its libFuzzer/sanitizer runtimes and OpenMP, llvm-symbolizer for readable stacks.
 scripts/install_deps.sh clang libclang-rt-14-dev libomp-14-dev llvm-14
 
+# ccache hits across clones (CI builds a fresh clone in another folder): paths below the
+# project root are hashed relative to it, and -g builds do not hash the working directory.
+export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=1
+
 # CC/CXX matter on the first configure only; the option check rejects any other compiler.
 CC=clang CXX=clang++ cmake -S . -B build-fuzz -DFLASHTWIN_BUILD_FUZZ=ON \
   -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null

@@ -9,6 +9,10 @@ cd "$(dirname "$0")/.."
 
 scripts/install_deps.sh
 
+# ccache hits across clones (CI builds a fresh clone in another folder): paths below the
+# project root are hashed relative to it, and -g builds do not hash the working directory.
+export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=1
+
 # Options given turn targets on; without them the build folder keeps what it had.
 BUILD=build
 OPTS=()

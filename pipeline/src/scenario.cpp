@@ -1,4 +1,5 @@
 #include "flashtwin/pipeline/scenario.hpp"
+#include "flashtwin/pipeline/sweep.hpp"
 
 #include <cmath>
 
@@ -39,6 +40,36 @@ void read_flash(const ConfigNode& f, sim::FlashParams& fp) {
 
 Pose view_pose(const ConfigNode& v) {
   return pose_from_xyz_rpy(v.get_vec3("xyz", Vec3::Zero()), v.get_vec3("rpy", Vec3::Zero()));
+}
+
+// expect_sweep: {seeds: "201-208", pass_rate: 0.75, path.coverage: {p50: [0.9, null]}, ...}
+void read_expect_sweep(const ConfigNode& ex, SweepExpectation& out) {
+  if (!ex.is_map()) ex.fail("expected {seeds: ..., pass_rate: ..., METRIC: {p50: [min, max]}}");
+  const ConfigNode seeds = ex.at("seeds");
+  try {
+    out.seeds = parse_seeds(seeds.as_string());
+  } catch (const ArgumentError& e) {
+    seeds.fail(std::string("expected seeds like 201-208 or 1,5,9 (") + e.what() + ")");
+  }
+  out.min_pass_rate = ex.get_double("pass_rate", 0, 1, 0);
+  for (const auto& key : ex.keys()) {
+    if (key == "seeds" || key == "pass_rate") continue;
+    const ConfigNode m = ex.at(key);
+    if (!m.is_map()) m.fail("expected {min|p10|p50|p90|max: [min, max]}, got " + m.describe());
+    for (const auto& stat : m.keys()) {
+      const ConfigNode v = m.at(stat);
+      if (stat != "min" && stat != "p10" && stat != "p50" && stat != "p90" && stat != "max")
+        v.fail("expected a statistic min, p10, p50, p90 or max, got '" + stat + "'");
+      if (!v.is_sequence() || v.size() != 2) v.fail("expected [min, max] (null for an open end)");
+      SweepBound b;
+      b.key = key;
+      b.statistic = stat;
+      if (!v[0].is_null()) b.lo = v[0].as_double();
+      if (!v[1].is_null()) b.hi = v[1].as_double();
+      if (!(b.lo <= b.hi)) v.fail("expected min <= max");
+      out.bounds.push_back(b);
+    }
+  }
 }
 
 void read_scanner(const ConfigNode& s, Scenario& sc) {
@@ -220,8 +251,8 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
       cell.X_WTable = t.get_pose("pose", cell.X_WTable);
       if (t.has("size")) {
         cell.table_size = t.get_vec3("size");
-        if (cell.table_size.minCoeff() <= 0)
-          t.at("size").fail("expected three positive extents [m]");
+        if (cell.table_size.minCoeff() <= 0 || cell.table_size.maxCoeff() > 10)
+          t.at("size").fail("expected three extents in (0, 10] m (metres, not millimetres)");
       }
       if (cell.X_WTable.translation().z() <= cell.table_size.z())
         t.fail("expected the table top above the floor by more than its thickness");
@@ -396,6 +427,8 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
       sc.expect.push_back(e);
     }
   }
+
+  if (root.has("expect_sweep")) read_expect_sweep(root.at("expect_sweep"), sc.expect_sweep);
 
   root.check_all_used();
   return sc;

@@ -32,6 +32,45 @@ std::uint64_t parse_u64(const std::string& s, const std::string& whole) {
 
 }  // namespace
 
+double nearest_rank(const std::vector<double>& sorted, double q) {
+  if (sorted.empty()) return std::nan("");
+  // Nearest rank: the smallest value with at least q of the values at or below it.
+  const double rank = std::ceil(q * static_cast<double>(sorted.size()));
+  const std::size_t i = static_cast<std::size_t>(std::max(1.0, rank)) - 1;
+  return sorted[std::min(i, sorted.size() - 1)];
+}
+
+std::vector<std::string> check_sweep_expectations(const SweepExpectation& ex,
+                                                  const nlohmann::ordered_json& summary) {
+  std::vector<std::string> bad;
+  auto range = [](double lo, double hi) {
+    std::ostringstream os;
+    os << "[" << (lo < -1e299 ? std::string("-inf") : std::to_string(lo)) << ", "
+       << (hi > 1e299 ? std::string("inf") : std::to_string(hi)) << "]";
+    return os.str();
+  };
+  const double rate = summary.value("pass_rate", 0.0);
+  if (rate < ex.min_pass_rate) {
+    std::ostringstream os;
+    os << "pass_rate: expected at least " << ex.min_pass_rate << ", got " << rate
+       << " (seeds outside expect: " << summary["outside_expect_seeds"].dump()
+       << ", failed: " << summary["failed_seeds"].dump() << ")";
+    bad.push_back(os.str());
+  }
+  const json& metrics = summary["metrics"];
+  for (const SweepBound& b : ex.bounds) {
+    if (!metrics.contains(b.key) || !metrics[b.key].contains(b.statistic)) {
+      bad.push_back(b.key + "." + b.statistic + ": expected by the scenario, missing from the sweep");
+      continue;
+    }
+    const double x = metrics[b.key][b.statistic].get<double>();
+    if (!(x >= b.lo && x <= b.hi))
+      bad.push_back(b.key + "." + b.statistic + ": expected within " + range(b.lo, b.hi) +
+                    ", got " + std::to_string(x));
+  }
+  return bad;
+}
+
 std::vector<std::uint64_t> parse_seeds(const std::string& text) {
   std::vector<std::uint64_t> out;
   std::set<std::uint64_t> seen;
@@ -74,11 +113,12 @@ json summarize_runs(const std::vector<json>& runs) {
   struct Stat {
     double sum = 0, lo = 1e300, hi = -1e300;
     std::size_t n = 0;
+    std::vector<double> values;
   };
   std::map<std::string, Stat> stats;
   std::vector<std::string> order;
   json failed = json::array(), outside = json::array();
-  std::size_t failures = 0;
+  std::size_t failures = 0, passed = 0;
   for (const auto& r : runs) {
     const int code = r.value("exit_code", 1);
     if (code != 0) {
@@ -86,6 +126,7 @@ json summarize_runs(const std::vector<json>& runs) {
       failed.push_back(r.value("seed", json(nullptr)));
     }
     if (r.value("expect_violations", 0) > 0) outside.push_back(r.value("seed", json(nullptr)));
+    passed += !r.contains("error") && r.value("expect_violations", 0) == 0;
     for (auto it = r.begin(); it != r.end(); ++it) {
       const auto& v = it.value();
       if (it.key() == "seed" || it.key() == "exit_code" || it.key() == "expect_violations") continue;
@@ -101,6 +142,7 @@ json summarize_runs(const std::vector<json>& runs) {
       s.lo = std::min(s.lo, x);
       s.hi = std::max(s.hi, x);
       ++s.n;
+      s.values.push_back(x);
     }
   }
   json out;
@@ -109,10 +151,16 @@ json summarize_runs(const std::vector<json>& runs) {
   out["failed_seeds"] = failed;
   out["outside_expect"] = outside.size();
   out["outside_expect_seeds"] = outside;
+  // Runs within every expect: bound (the exit code among them where the scenario states it);
+  // a run that ended in an error never passes.
+  out["pass_rate"] = runs.empty() ? 0.0 : static_cast<double>(passed) / runs.size();
   json metrics = json::object();
   for (const auto& k : order) {
-    const Stat& s = stats[k];
-    metrics[k] = {{"mean", s.sum / s.n}, {"min", s.lo}, {"max", s.hi}, {"n", s.n}};
+    Stat& s = stats[k];
+    std::sort(s.values.begin(), s.values.end());
+    metrics[k] = {{"mean", s.sum / s.n}, {"min", s.lo},
+                  {"p10", nearest_rank(s.values, 0.1)}, {"p50", nearest_rank(s.values, 0.5)},
+                  {"p90", nearest_rank(s.values, 0.9)}, {"max", s.hi}, {"n", s.n}};
   }
   out["metrics"] = metrics;
   return out;
@@ -184,12 +232,17 @@ SweepResult run_sweep(const Scenario& base, const SweepOptions& o) {
   md << "# Sweep of " << base.name << " (" << out.runs << " runs, " << out.failures
      << " failed, " << out.summary["outside_expect"].get<std::size_t>()
      << " outside the scenario's expect: bounds, shard " << o.shard << "/" << o.shards << ")\n\n"
-     << "| metric | mean | min | max | runs |\n|---|---:|---:|---:|---:|\n";
+     << "Pass rate (runs within every expect: bound): "
+     << out.summary["pass_rate"].get<double>() << "\n\n"
+     << "| metric | mean | min | p10 | p50 | p90 | max | runs |\n"
+     << "|---|---:|---:|---:|---:|---:|---:|---:|\n";
   for (auto it = out.summary["metrics"].begin(); it != out.summary["metrics"].end(); ++it) {
-    char buf[256];
-    std::snprintf(buf, sizeof buf, "| %s | %.4g | %.4g | %.4g | %zu |\n", it.key().c_str(),
-                  it.value()["mean"].get<double>(), it.value()["min"].get<double>(),
-                  it.value()["max"].get<double>(), it.value()["n"].get<std::size_t>());
+    char buf[384];
+    const json& v = it.value();
+    std::snprintf(buf, sizeof buf, "| %s | %.4g | %.4g | %.4g | %.4g | %.4g | %.4g | %zu |\n",
+                  it.key().c_str(), v["mean"].get<double>(), v["min"].get<double>(),
+                  v["p10"].get<double>(), v["p50"].get<double>(), v["p90"].get<double>(),
+                  v["max"].get<double>(), v["n"].get<std::size_t>());
     md << buf;
   }
   if (out.failures) md << "\nFailed seeds: " << out.summary["failed_seeds"].dump() << "\n";

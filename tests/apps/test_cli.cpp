@@ -324,6 +324,22 @@ TEST(Cli, RunRejectsBadScenariosWithExitTwo) {
     f << "name: m\nrobot: " << ftest::source_path("models/robots/ft6.yaml")
       << "\ncasting: {family: mesh, mesh: /nonexistent/part.stl}\n";
   }
+  {
+    std::ofstream f(tmp + "/alias_cycle.yaml");
+    f << "name: a\nrobot: " << ftest::source_path("models/robots/ft6.yaml")
+      << "\ncasting: {family: flanged_plate}\nscanner: {views: &v [*v]}\n";
+  }
+  {
+    // A binary STL whose header promises 1,000 triangles and holds half of one.
+    std::string stl(80, ' ');
+    const std::uint32_t n = 1000;
+    stl.append(reinterpret_cast<const char*>(&n), 4);
+    stl.append(25, '\1');
+    std::ofstream(tmp + "/truncated.stl", std::ios::binary) << stl;
+    std::ofstream f(tmp + "/truncated_mesh.yaml");
+    f << "name: t\nrobot: " << ftest::source_path("models/robots/ft6.yaml")
+      << "\ncasting: {family: mesh, mesh: truncated.stl, scale: 0.001}\n";
+  }
   struct Case {
     std::string args, needle;
   };
@@ -335,6 +351,14 @@ TEST(Cli, RunRejectsBadScenariosWithExitTwo) {
       {"run " + tmp + "/missing_mesh.yaml -o " + tmp + "/o5", "/nonexistent/part.stl"},
       {"sweep " + sc + " -o " + tmp + "/o6 --seeds 5-1", "--seeds 5-1"},
       {"sweep " + sc + " -o " + tmp + "/o7 --shard 3/2", "--shard 3/2"},
+      // NaN, huge, wrong units, an impossible cell, hostile YAML, a truncated mesh.
+      {"run " + sc + " -o " + tmp + "/o8 --set planning.feed=.nan", "planning.feed"},
+      {"run " + sc + " -o " + tmp + "/o9 --set planning.feed=1e308", "planning.feed"},
+      {"run " + sc + " -o " + tmp + "/o10 --set cell.table.size=[800,900,50]", "cell.table.size"},
+      {"run " + sc + " -o " + tmp + "/o11 --set cell.table.size=[0.05,0.05,0.05]", "table top"},
+      {"run " + tmp + "/alias_cycle.yaml -o " + tmp + "/o12", "alias_cycle.yaml"},
+      {"run " + tmp + "/truncated_mesh.yaml -o " + tmp + "/o13", "truncated.stl"},
+      {"sweep " + sc + " -o " + tmp + "/o14 --check", "expect_sweep"},
   };
   for (const auto& c : cases) {
     const CliRun r = run("-q " + c.args);  // -q: no progress lines on stderr, only the error
@@ -342,7 +366,7 @@ TEST(Cli, RunRejectsBadScenariosWithExitTwo) {
     EXPECT_NE(r.err.find(c.needle), std::string::npos) << c.args << "\n" << r.err;
     EXPECT_EQ(lines(r.err), 1) << c.args << "\n" << r.err;
   }
-  for (const char* o : {"/o1", "/o2", "/o3", "/o4", "/o5"})
+  for (const char* o : {"/o1", "/o2", "/o3", "/o4", "/o5", "/o8", "/o9", "/o10", "/o11", "/o12", "/o13"})
     EXPECT_FALSE(std::filesystem::exists(tmp + o + "/metrics.json")) << o;
 }
 

@@ -1,6 +1,9 @@
 // Sweeps and scenario overrides: seed lists, shards, summaries, --set on the YAML, report pieces.
 #include <gtest/gtest.h>
 
+#include <cmath>
+#include <fstream>
+
 #include "flashtwin/core/errors.hpp"
 #include "flashtwin/pipeline/report.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
@@ -38,6 +41,58 @@ TEST(Sweep, SummaryStatisticsAndFailures) {
   EXPECT_NEAR(s["metrics"]["registration.confident"]["mean"].get<double>(), 2.0 / 3, 1e-12);
   EXPECT_FALSE(s["metrics"].contains("verdict"));
   EXPECT_FALSE(s["metrics"].contains("seed"));
+}
+
+TEST(Sweep, PercentilesByNearestRankAndPassRate) {
+  EXPECT_DOUBLE_EQ(nearest_rank({1, 2, 3, 4, 5, 6, 7, 8, 9, 10}, 0.1), 1);
+  EXPECT_DOUBLE_EQ(nearest_rank({1, 2, 3, 4, 5, 6, 7, 8, 9, 10}, 0.5), 5);
+  EXPECT_DOUBLE_EQ(nearest_rank({1, 2, 3, 4, 5, 6, 7, 8, 9, 10}, 0.9), 9);
+  EXPECT_DOUBLE_EQ(nearest_rank({4}, 0.1), 4);
+  EXPECT_TRUE(std::isnan(nearest_rank({}, 0.5)));
+  std::vector<nlohmann::ordered_json> runs;
+  for (int i = 0; i < 10; ++i)
+    runs.push_back({{"seed", i}, {"exit_code", i == 9 ? 1 : 0}, {"expect_violations", i >= 7 ? 1 : 0},
+                    {"path.coverage", 0.9 + 0.01 * i}});
+  runs.push_back({{"seed", 10}, {"exit_code", 2}, {"error", "boom"}});
+  const auto s = summarize_runs(runs);
+  EXPECT_NEAR(s["pass_rate"].get<double>(), 7.0 / 11, 1e-12);  // 7 within bounds, 1 error
+  EXPECT_NEAR(s["metrics"]["path.coverage"]["p10"].get<double>(), 0.90, 1e-12);
+  EXPECT_NEAR(s["metrics"]["path.coverage"]["p50"].get<double>(), 0.94, 1e-12);
+  EXPECT_NEAR(s["metrics"]["path.coverage"]["p90"].get<double>(), 0.98, 1e-12);
+
+  SweepExpectation ex;
+  ex.min_pass_rate = 0.6;
+  ex.bounds = {{"path.coverage", "p50", 0.93, 1e300}, {"path.coverage", "p10", 0.91, 1e300}};
+  const auto bad = check_sweep_expectations(ex, s);
+  ASSERT_EQ(bad.size(), 1u);
+  EXPECT_EQ(bad[0].rfind("path.coverage.p10: expected within [0.910000, inf], got 0.9", 0), 0u);
+  ex.min_pass_rate = 0.7;
+  ex.bounds.push_back({"path.rmse_mm", "p50", -1e300, 0.1});
+  EXPECT_EQ(check_sweep_expectations(ex, s).size(), 3u);  // pass rate, p10, missing metric
+}
+
+TEST(Scenario, ExpectSweepBlockIsReadAndChecked) {
+  const std::string dir = ftest::temp_dir("expect_sweep");
+  const std::string robot = ftest::source_path("models/robots/ft6.yaml");
+  auto scenario = [&](const std::string& block) {
+    const std::string p = dir + "/s.yaml";
+    std::ofstream(p) << "name: s\nrobot: " << robot
+                     << "\ncasting: {family: flanged_plate}\nexpect_sweep:\n" << block;
+    return p;
+  };
+  const Scenario sc = load_scenario(scenario(
+      "  seeds: 201-204,210\n  pass_rate: 0.75\n  path.coverage: {p50: [0.9, null], min: [0.5, null]}\n"));
+  EXPECT_EQ(sc.expect_sweep.seeds, (std::vector<std::uint64_t>{201, 202, 203, 204, 210}));
+  EXPECT_DOUBLE_EQ(sc.expect_sweep.min_pass_rate, 0.75);
+  ASSERT_EQ(sc.expect_sweep.bounds.size(), 2u);
+  EXPECT_EQ(sc.expect_sweep.bounds[0].statistic, "p50");
+  EXPECT_DOUBLE_EQ(sc.expect_sweep.bounds[0].lo, 0.9);
+  EXPECT_THROW(load_scenario(scenario("  pass_rate: 0.5\n")), ConfigError);  // no seeds
+  EXPECT_THROW(load_scenario(scenario("  seeds: 5-1\n")), ConfigError);
+  EXPECT_THROW(load_scenario(scenario("  seeds: 1-8\n  pass_rate: 2\n")), ConfigError);
+  EXPECT_THROW(load_scenario(scenario("  seeds: 1-8\n  path.coverage: {p42: [0, 1]}\n")), ConfigError);
+  EXPECT_THROW(load_scenario(scenario("  seeds: 1-8\n  path.coverage: {p50: [1, 0]}\n")), ConfigError);
+  EXPECT_THROW(load_scenario(scenario("  seeds: 1-8\n  path.coverage: 0.9\n")), ConfigError);
 }
 
 TEST(Scenario, OverridesSetKeysAndUnknownKeysAreStillReported) {

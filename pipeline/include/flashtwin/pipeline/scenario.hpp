@@ -35,6 +35,22 @@ struct Expectation {
   bool flag = false;
 };
 
+/// One distribution bound of `expect_sweep:`: a statistic of a metric over the sweep's runs
+/// within [lo, hi]. Statistics: min, p10, p50, p90, max (nearest rank on the sorted values).
+struct SweepBound {
+  std::string key;        ///< metrics.json key
+  std::string statistic;  ///< "min", "p10", "p50", "p90" or "max"
+  double lo = -1e300, hi = 1e300;
+};
+
+/// The scenario's regression check over a range of seeds (`expect_sweep:`), run by
+/// `flashtwin sweep --check`: a single seed is an anecdote, its bounds are knife edges.
+struct SweepExpectation {
+  std::vector<std::uint64_t> seeds;  ///< empty: the scenario has no expect_sweep: block
+  double min_pass_rate = 0;  ///< share of runs within every `expect:` bound (exit code included)
+  std::vector<SweepBound> bounds;
+};
+
 /// The closed loop after planning (`execution:` and `process:` in the scenario file).
 struct ExecutionSettings {
   bool enabled = true;            ///< run the planned paths in MuJoCo with the process model
@@ -60,6 +76,7 @@ struct Scenario {
   planner::GrindParams grind;             ///< `planning:` overrides
   ExecutionSettings execution;            ///< `execution:` and `process:` overrides
   std::vector<Expectation> expect;        ///< `expect:` bounds checked by regression runs
+  SweepExpectation expect_sweep;          ///< `expect_sweep:` distribution bounds over seeds
 };
 
 /// Reads and validates a scenario; relative paths inside are resolved against its folder.

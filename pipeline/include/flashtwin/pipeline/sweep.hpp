@@ -43,8 +43,19 @@ SweepResult run_sweep(const Scenario& scenario, const SweepOptions& options);
 
 /// Per-metric statistics over JSON lines of metrics (numbers only; booleans count trues):
 /// {"runs": n, "failures": f (exit code ≠ 0), "failed_seeds": [...], "outside_expect": e (runs
-/// with expect_violations > 0), "outside_expect_seeds": [...], "metrics": {key: {mean, min, max,
-/// n}}}.
+/// with expect_violations > 0), "outside_expect_seeds": [...], "pass_rate": share of runs within
+/// every expect: bound (without an error), "metrics": {key: {mean, min, p10, p50, p90, max, n}}} (percentiles
+/// by nearest rank).
 nlohmann::ordered_json summarize_runs(const std::vector<nlohmann::ordered_json>& runs);
+
+/// The q-quantile of ascending values by nearest rank (q in [0, 1]; NaN when empty).
+double nearest_rank(const std::vector<double>& sorted, double q);
+
+struct SweepExpectation;
+
+/// Checks a sweep summary (summarize_runs) against the scenario's `expect_sweep:` bounds;
+/// returns one line per violation.
+std::vector<std::string> check_sweep_expectations(const SweepExpectation& expectation,
+                                                  const nlohmann::ordered_json& summary);
 
 }  // namespace flashtwin::pipeline
