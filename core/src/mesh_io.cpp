@@ -1,21 +1,22 @@
-// Mesh and point-cloud files. assimp reads meshes; PCL reads clouds (PLY/PCD in their many
-// variants); writing is done here (simple binary formats, atomic).
+// Mesh files (read by assimp) and writing meshes and clouds (simple binary formats, atomic);
+// clouds are read in cloud_io.cpp.
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
-#include <pcl/io/pcd_io.h>
-#include <pcl/io/ply_io.h>
-#include <pcl/point_types.h>
 
 #include <assimp/Importer.hpp>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <map>
+#include <set>
 #include <sstream>
+#include <vector>
 
 #include "flashtwin/core/errors.hpp"
 #include "flashtwin/core/io.hpp"
 #include "flashtwin/core/mesh.hpp"
+#include "cloud_formats.hpp"
 
 namespace flashtwin {
 
@@ -50,9 +51,16 @@ TriangleMesh load_mesh(const std::string& path, double scale) {
   require_readable(path);
   if (!(scale > 0) || !std::isfinite(scale))
     throw ArgumentError(path + ": scale: expected a positive number, got " + std::to_string(scale));
+  // assimp's PLY importer hung or asked for gigabytes on malformed files: check it first.
+  if (lower_ext(path) == ".ply") detail::check_ply_file(path);
   Assimp::Importer importer;
-  const aiScene* scene = importer.ReadFile(
-      path, aiProcess_Triangulate | aiProcess_JoinIdenticalVertices | aiProcess_PreTransformVertices);
+  // Validate before any post-processing step: assimp's own steps assert (abort) on face
+  // indices past the vertices, and ReadFile does not promise to validate first.
+  const aiScene* scene = importer.ReadFile(path, 0);
+  if (scene) scene = importer.ApplyPostProcessing(aiProcess_ValidateDataStructure);
+  if (scene)
+    scene = importer.ApplyPostProcessing(aiProcess_Triangulate | aiProcess_JoinIdenticalVertices |
+                                         aiProcess_PreTransformVertices);
   if (!scene || !scene->mRootNode)
     throw InputError(path + ": cannot read the mesh (" + importer.GetErrorString() + ")");
   TriangleMesh mesh;
@@ -168,61 +176,6 @@ void save_pcd(const std::string& path, const PointCloud& cloud) {
     if (has_l) put<std::uint32_t>(out, cloud.labels[i]);
   }
   write_text_file(path, out);
-}
-
-PointCloud load_cloud(const std::string& path) {
-  require_readable(path);
-  const std::string ext = lower_ext(path);
-  // PCL 1.13's readers crash on some malformed headers: check the header's shape first.
-  {
-    std::ifstream in(path, std::ios::binary);
-    std::string head(4096, '\0');
-    in.read(head.data(), static_cast<std::streamsize>(head.size()));
-    head.resize(static_cast<std::size_t>(in.gcount()));
-    auto has_line = [&](const std::string& word) {
-      return head.rfind(word, 0) == 0 || head.find("\n" + word) != std::string::npos;
-    };
-    if (ext == ".pcd" && !(has_line("FIELDS") && has_line("POINTS") && has_line("DATA")))
-      throw InputError(path + ": expected a PCD header (FIELDS, POINTS, DATA lines), got none");
-    if (ext == ".ply" && !(head.rfind("ply", 0) == 0 && head.find("end_header") != std::string::npos))
-      throw InputError(path + ": expected a PLY header ('ply' ... 'end_header'), got none");
-  }
-  pcl::PCLPointCloud2 blob;
-  int rc = -1;
-  if (ext == ".pcd") {
-    pcl::PCDReader reader;
-    rc = reader.read(path, blob);
-  } else if (ext == ".ply") {
-    pcl::PLYReader reader;
-    rc = reader.read(path, blob);
-  } else {
-    throw ArgumentError(path + ": expected a .ply or .pcd point cloud, got '" + ext + "'");
-  }
-  if (rc < 0) throw InputError(path + ": cannot parse the point cloud (malformed " + ext + ")");
-  bool has_xyz = false, has_n = false;
-  for (const auto& f : blob.fields) {
-    has_xyz = has_xyz || f.name == "x";
-    has_n = has_n || f.name == "normal_x" || f.name == "nx";
-  }
-  if (!has_xyz) throw InputError(path + ": expected x, y, z fields, found none");
-  PointCloud cloud;
-  if (has_n) {
-    pcl::PointCloud<pcl::PointNormal> pc;
-    pcl::fromPCLPointCloud2(blob, pc);
-    for (const auto& p : pc.points) {
-      cloud.points.emplace_back(p.x, p.y, p.z);
-      cloud.normals.emplace_back(p.normal_x, p.normal_y, p.normal_z);
-    }
-  } else {
-    pcl::PointCloud<pcl::PointXYZ> pc;
-    pcl::fromPCLPointCloud2(blob, pc);
-    for (const auto& p : pc.points) cloud.points.emplace_back(p.x, p.y, p.z);
-  }
-  for (std::size_t i = 0; i < cloud.size(); ++i)
-    if (!cloud.points[i].allFinite())
-      throw InputError(path + ": point " + std::to_string(i) +
-                       ": expected finite coordinates, got NaN or inf");
-  return cloud;
 }
 
 }  // namespace flashtwin
