@@ -193,6 +193,8 @@ PlyHeader read_ply_header(const std::string& path, const std::string& text) {
       if (w.size() != 3 || !parse_count(w[2], 1ULL << 31, e.count))
         bad("got an element line '" + line.substr(0, 40) + "'");
       e.name = w[1];
+      for (const PlyElement& o : h.elements)
+        if (o.name == e.name) bad("got element '" + e.name + "' twice");
       h.elements.push_back(e);
     } else if (w[0] == "property") {
       PlyProperty p;
