@@ -5,6 +5,8 @@
 #include <string>
 #include <vector>
 
+#include "flashtwin/core/mesh.hpp"
+
 namespace flashtwin::detail {
 
 /// A binary scalar: kind 'i' (signed), 'u' (unsigned) or 'f' (IEEE float), size in bytes.
@@ -38,9 +40,10 @@ struct PlyHeader {
 /// Parses the header of a PLY file's text. @throws InputError naming the file and the line.
 PlyHeader read_ply_header(const std::string& path, const std::string& text);
 
-/// Reads a whole PLY file and walks its body: every element's items present and well formed.
+/// A PLY mesh (element vertex with x, y, z times `scale`; element face with one index list,
+/// polygons as fans), every item of the file checked. Not welded.
 /// @throws IoError (unreadable), InputError naming the file, element and item.
-void check_ply_file(const std::string& path);
+TriangleMesh read_ply_mesh(const std::string& path, double scale);
 
 struct PcdHeader {
   std::vector<std::string> fields;

@@ -218,12 +218,14 @@ PlyHeader read_ply_header(const std::string& path, const std::string& text) {
   return h;
 }
 
-/// Walks every item of every element of a PLY body, handing the vertex element's values to
-/// `vertex` (one vector per item); checks every count and size against the data.
-template <class Vertex>
+/// Walks every item of every element of a PLY body, handing each item to
+/// `item(element index, values, list values)`: one value per property (a list's length for a
+/// list), and the values of the item's lists one after another. Checks every count and size
+/// against the data.
+template <class Item>
 void walk_ply_body(const std::string& path, const std::string& text, const PlyHeader& h,
-                   Vertex&& vertex) {
-  std::vector<double> values;
+                   Item&& item) {
+  std::vector<double> values, lists;
   if (h.format == "ascii") {
     std::size_t pos = h.body_at;
     std::string line;
@@ -236,6 +238,7 @@ void walk_ply_body(const std::string& path, const std::string& text, const PlyHe
         const auto w = words_of(line);
         std::size_t t = 0;
         values.clear();
+        lists.clear();
         bool ok = true;
         auto number = [&](double& x) { return t < w.size() && parse_number(w[t++], x); };
         for (const PlyProperty& p : e.props) {
@@ -246,6 +249,7 @@ void walk_ply_body(const std::string& path, const std::string& text, const PlyHe
             for (long j = 0; ok && j < static_cast<long>(x); ++j) {
               double y = 0;
               ok = number(y);
+              lists.push_back(y);
             }
           }
           values.push_back(x);
@@ -254,7 +258,7 @@ void walk_ply_body(const std::string& path, const std::string& text, const PlyHe
           throw InputError(path + ": element '" + e.name + "' item " + std::to_string(i) +
                            ": expected the numbers its properties list, got '" +
                            line.substr(0, 40) + "'");
-        if (e.name == "vertex") vertex(values);
+        item(k, values, lists);
       }
     }
     return;
@@ -266,9 +270,11 @@ void walk_ply_body(const std::string& path, const std::string& text, const PlyHe
     throw InputError(path + ": element '" + e.name + "' item " + std::to_string(i) +
                      ": expected more data, got the end of the file");
   };
-  for (const PlyElement& e : h.elements) {
+  for (std::size_t k = 0; k < h.elements.size(); ++k) {
+    const PlyElement& e = h.elements[k];
     for (std::uint64_t i = 0; i < e.count; ++i) {
       values.clear();
+      lists.clear();
       for (const PlyProperty& p : e.props) {
         if (p.list) {
           if (pos + static_cast<std::size_t>(p.count_type.bytes) > text.size()) short_data(e, i);
@@ -277,9 +283,10 @@ void walk_ply_body(const std::string& path, const std::string& text, const PlyHe
           if (!(n >= 0 && n <= 1e6))
             throw InputError(path + ": element '" + e.name + "' item " + std::to_string(i) +
                              ": expected a list length in [0, 10^6], got " + std::to_string(n));
-          const std::size_t skip = static_cast<std::size_t>(n) * static_cast<std::size_t>(p.value_type.bytes);
-          if (pos + skip > text.size()) short_data(e, i);
-          pos += skip;
+          const std::size_t bytes = static_cast<std::size_t>(p.value_type.bytes);
+          if (pos + static_cast<std::size_t>(n) * bytes > text.size()) short_data(e, i);
+          for (std::size_t j = 0; j < static_cast<std::size_t>(n); ++j, pos += bytes)
+            lists.push_back(read_value(data + pos, p.value_type, big));
           values.push_back(n);
         } else {
           if (pos + static_cast<std::size_t>(p.value_type.bytes) > text.size()) short_data(e, i);
@@ -287,14 +294,66 @@ void walk_ply_body(const std::string& path, const std::string& text, const PlyHe
           pos += static_cast<std::size_t>(p.value_type.bytes);
         }
       }
-      if (e.name == "vertex") vertex(values);
+      item(k, values, lists);
     }
   }
 }
 
-void check_ply_file(const std::string& path) {
+TriangleMesh read_ply_mesh(const std::string& path, double scale) {
   const std::string text = read_file(path);
-  walk_ply_body(path, text, read_ply_header(path, text), [](const std::vector<double>&) {});
+  const PlyHeader h = read_ply_header(path, text);
+  // The vertex element's x, y, z and the face element's index list.
+  std::size_t vertex_el = h.elements.size(), face_el = h.elements.size();
+  int x = -1, y = -1, z = -1;
+  for (std::size_t k = 0; k < h.elements.size(); ++k) {
+    const PlyElement& e = h.elements[k];
+    if (e.name == "vertex") {
+      vertex_el = k;
+      for (int i = 0; i < static_cast<int>(e.props.size()); ++i) {
+        const PlyProperty& p = e.props[static_cast<std::size_t>(i)];
+        if (p.list) continue;
+        if (p.name == "x") x = i;
+        if (p.name == "y") y = i;
+        if (p.name == "z") z = i;
+      }
+    }
+    if (e.name == "face") {
+      int lists = 0;
+      for (const PlyProperty& p : e.props) lists += p.list;
+      if (lists != 1)
+        throw InputError(path + ": element 'face': expected one list of vertex indices, got " +
+                         std::to_string(lists) + " lists");
+      face_el = k;
+    }
+  }
+  if (vertex_el == h.elements.size() || x < 0 || y < 0 || z < 0 || face_el == h.elements.size())
+    throw InputError(path + ": expected a PLY mesh (element vertex with x, y, z and element face "
+                     "with vertex indices), got none");
+  TriangleMesh mesh;
+  const std::uint64_t nv = h.elements[vertex_el].count;
+  std::uint64_t face = 0;
+  walk_ply_body(path, text, h, [&](std::size_t k, const std::vector<double>& v,
+                                   const std::vector<double>& idx) {
+    if (k == vertex_el) {
+      const Vec3 q(v[static_cast<std::size_t>(x)] * scale, v[static_cast<std::size_t>(y)] * scale,
+                   v[static_cast<std::size_t>(z)] * scale);
+      if (!q.allFinite())
+        throw InputError(path + ": vertex " + std::to_string(mesh.vertices.size()) +
+                         ": expected finite coordinates");
+      mesh.vertices.push_back(q);
+    } else if (k == face_el) {
+      for (const double i : idx)
+        if (!(i >= 0 && i < static_cast<double>(nv)) || i != std::floor(i))
+          throw InputError(path + ": face " + std::to_string(face) + ": expected vertex indices in [0, " +
+                           std::to_string(nv) + "), got " + std::to_string(i));
+      // A polygon as a fan; points and lines (fewer than 3 corners) carry no surface.
+      for (std::size_t j = 2; j < idx.size(); ++j)
+        mesh.triangles.emplace_back(static_cast<int>(idx[0]), static_cast<int>(idx[j - 1]),
+                                    static_cast<int>(idx[j]));
+      ++face;
+    }
+  });
+  return mesh;
 }
 
 PcdHeader read_pcd_header(const std::string& path, const std::string& text) {
@@ -452,7 +511,11 @@ PointCloud read_ply_cloud(const std::string& path, const std::string& text) {
   if (s.x < 0 || s.y < 0 || s.z < 0)
     throw InputError(path + ": expected a vertex element with x, y and z, got none");
   PointCloud out;
-  walk_ply_body(path, text, h, [&](const std::vector<double>& v) { add_point(v, s, out); });
+  std::size_t vertex_el = 0;
+  while (h.elements[vertex_el].name != "vertex") ++vertex_el;  // present: slots_of found x
+  walk_ply_body(path, text, h, [&](std::size_t k, const std::vector<double>& v, const std::vector<double>&) {
+    if (k == vertex_el) add_point(v, s, out);
+  });
   return out;
 }
 

@@ -51,8 +51,15 @@ TriangleMesh load_mesh(const std::string& path, double scale) {
   require_readable(path);
   if (!(scale > 0) || !std::isfinite(scale))
     throw ArgumentError(path + ": scale: expected a positive number, got " + std::to_string(scale));
-  // assimp's PLY importer hung or asked for gigabytes on malformed files: check it first.
-  if (lower_ext(path) == ".ply") detail::check_ply_file(path);
+  // PLY meshes are read by our own parser: assimp's PLY importer hung, aborted and asked for
+  // gigabytes on fuzzed files (fuzz/README.md).
+  if (lower_ext(path) == ".ply") {
+    TriangleMesh mesh = detail::read_ply_mesh(path, scale);
+    if (mesh.triangles.empty())
+      throw InputError(path + ": expected a triangle mesh, got no triangles");
+    weld_vertices(mesh, 1e-9 * std::max(1.0, scale));
+    return mesh;
+  }
   Assimp::Importer importer;
   // Validate before any post-processing step: assimp's own steps assert (abort) on face
   // indices past the vertices, and ReadFile does not promise to validate first.
