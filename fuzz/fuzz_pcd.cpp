@@ -1,7 +1,5 @@
-// libFuzzer harness: PCD point clouds (core load_cloud, PCL's PCDReader).
+// libFuzzer harness: PCD point clouds (core load_cloud, core/src/cloud_io.cpp).
 // Expected: flashtwin::InputError (IoError, ArgumentError); anything else is a finding.
-#include <pcl/console/print.h>
-
 #include <cstddef>
 #include <cstdint>
 
@@ -10,7 +8,6 @@
 
 extern "C" int LLVMFuzzerInitialize(int*, char***) {
   flashtwin::fuzz::quiet();
-  pcl::console::setVerbosityLevel(pcl::console::L_ALWAYS);
   return 0;
 }
 

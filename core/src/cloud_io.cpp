@@ -15,6 +15,7 @@
 
 #include "cloud_formats.hpp"
 #include "flashtwin/core/errors.hpp"
+#include "flashtwin/core/io.hpp"
 #include "flashtwin/core/mesh.hpp"
 
 namespace flashtwin {
@@ -44,14 +45,6 @@ bool parse_number(const std::string& t, double& x) {
   char* end = nullptr;
   x = std::strtod(t.c_str(), &end);
   return end != t.c_str() && *end == '\0';
-}
-
-std::string read_file(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw IoError(path + ": cannot open for reading");
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
 }
 
 /// Next header line of `text` from `pos` (advanced past it), without its line end.
@@ -300,7 +293,7 @@ void walk_ply_body(const std::string& path, const std::string& text, const PlyHe
 }
 
 TriangleMesh read_ply_mesh(const std::string& path, double scale) {
-  const std::string text = read_file(path);
+  const std::string text = read_text_file(path);
   const PlyHeader h = read_ply_header(path, text);
   // The vertex element's x, y, z and the face element's index list.
   std::size_t vertex_el = h.elements.size(), face_el = h.elements.size();
@@ -523,14 +516,11 @@ PointCloud read_ply_cloud(const std::string& path, const std::string& text) {
 }  // namespace detail
 
 PointCloud load_cloud(const std::string& path) {
-  std::error_code ec;
-  if (!fs::exists(path, ec)) throw IoError(path + ": file not found");
-  if (fs::is_directory(path, ec)) throw IoError(path + ": expected a file, got a directory");
   std::string ext = fs::path(path).extension().string();
   for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
   if (ext != ".pcd" && ext != ".ply")
     throw ArgumentError(path + ": expected a .ply or .pcd point cloud, got '" + ext + "'");
-  const std::string text = detail::read_file(path);
+  const std::string text = read_text_file(path);  // IoError when missing or unreadable
   PointCloud cloud = ext == ".pcd" ? detail::read_pcd(path, text) : detail::read_ply_cloud(path, text);
   for (std::size_t i = 0; i < cloud.size(); ++i)
     if (!cloud.points[i].allFinite())

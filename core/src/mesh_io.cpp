@@ -8,10 +8,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
-#include <map>
-#include <set>
 #include <sstream>
-#include <vector>
 
 #include "flashtwin/core/errors.hpp"
 #include "flashtwin/core/io.hpp"

@@ -67,7 +67,6 @@ struct Plane {
   Vec3 c = Vec3::Zero();
   Vec3 n = Vec3::UnitZ();
   Mat3 axes = Mat3::Identity();
-  Vec3 variance = Vec3::Zero();  ///< [m²] of the fitted points along axes' columns
   double dist(const Vec3& p) const { return n.dot(p - c); }
 };
 
@@ -81,7 +80,6 @@ Plane fit_plane(const std::vector<Vec3>& pts) {
   Eigen::SelfAdjointEigenSolver<Mat3> es(C);
   pl.axes = es.eigenvectors();
   pl.n = pl.axes.col(0).normalized();
-  pl.variance = es.eigenvalues() / static_cast<double>(std::max<std::size_t>(1, pts.size()));
   return pl;
 }
 
@@ -450,10 +448,9 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       const bool cad_face = 2 * hugging >= inl.size();
       const bool support = !cad_face &&
                            (smin > -P.support_side_tolerance || smax < P.support_side_tolerance);
-      const double width = std::sqrt(12.0 * std::max(0.0, best.variance(1)));
-      spdlog::debug("detect: plane {} n=({:.3f},{:.3f},{:.3f}) offset {:.4f}: {} inliers ({} on the CAD), {:.1f} mm wide, CAD side [{:.4f}, {:.4f}] -> {}",
+      spdlog::debug("detect: plane {} n=({:.3f},{:.3f},{:.3f}) offset {:.4f}: {} inliers ({} on the CAD), CAD side [{:.4f}, {:.4f}] -> {}",
                     plane_no, best.n.x(), best.n.y(), best.n.z(), best.n.dot(best.c), inl.size(),
-                    hugging, width * 1e3, smin, smax,
+                    hugging, smin, smax,
                     support ? "support" : cad_face ? "kept (a CAD face)" : "kept");
       if (support) {
         // Drop the plane's points and anything behind it (away from the part).
