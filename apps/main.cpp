@@ -250,8 +250,10 @@ ScanRun run_scan(const ft::pipeline::Scenario& sc, const std::string& out) {
   return r;
 }
 
-int cmd_scan(const Common& c, const std::string& scenario_path, const std::string& out) {
-  const ft::pipeline::Scenario sc = ft::pipeline::load_scenario(scenario_path);
+int cmd_scan(const Common& c, const std::string& scenario_path, const std::string& out,
+             long long seed_override) {
+  ft::pipeline::Scenario sc = ft::pipeline::load_scenario(scenario_path);
+  if (seed_override >= 0) ft::pipeline::set_seed(sc, static_cast<std::uint64_t>(seed_override));
   const ScanRun r = run_scan(sc, out);
   const auto& res = r.scan.result;
   std::size_t flash = 0;
@@ -730,6 +732,9 @@ int main(int argc, char** argv) {
   scan->add_option("-o,--output", out, "Output folder (scan.ply, scan.pcd, scan.json, cell/)")
       ->required();
   scan->add_flag("--json", common.json, "Print points, time and rays/s as JSON");
+  long long scan_seed = -1;
+  scan->add_option("--seed", scan_seed,
+                   "Override the scenario's seed (casting, placement, scan), as run and sweep do");
 
   auto* reg = app.add_subcommand(
       "register", "Register a scan (source) to a CAD model or cloud (target): the pose that maps "
@@ -739,9 +744,9 @@ int main(int argc, char** argv) {
   reg->add_option("--source", source_path, "Scan: PLY/PCD cloud (or a mesh's vertices)")->required();
   reg->add_option("--target", target_path, "CAD model STL/OBJ/PLY (sampled) or a PLY/PCD cloud")
       ->required();
-  reg->add_option("--method", method, "ours | sacia-ndt | ndt-icp | iss-3dsc-icp | fpcs-icp")
+  reg->add_option("--method", method, "ours | sacia-ndt | sacia-ndt-icp | ndt-icp | iss-3dsc-icp | fpcs-icp")
       ->capture_default_str()
-      ->check(CLI::IsMember({"ours", "sacia-ndt", "ndt-icp", "iss-3dsc-icp", "fpcs-icp"}));
+      ->check(CLI::IsMember({"ours", "sacia-ndt", "sacia-ndt-icp", "ndt-icp", "iss-3dsc-icp", "fpcs-icp"}));
   reg->add_flag("--remove-plane", remove_plane,
                 "Remove the support plane (table) and keep the largest cluster above it (ours)");
   reg->add_option("--viewpoint", viewpoint,
@@ -782,7 +787,7 @@ int main(int argc, char** argv) {
   run->add_option("--set", sets, "Override a scenario key: dotted.key=value (YAML value); repeatable");
   run->add_flag("--video", run_video, "Also write DIR/run.mp4 of the execution (slower)");
   run->add_option("--video-path", video_path, "Write the video here instead (implies --video)");
-  run->add_flag("--no-report", no_report, "Skip report.html and its renders");
+  run->add_flag("--no-report", no_report, "Skip report.html, its renders and the per-path joint plots (plan/path_K/*.png)");
   run->add_flag("--check", run_check,
                 "Regression mode: exit 0 when every bound of the scenario's expect: block holds "
                 "(an expected refusal, exit_code: 1, included), else 1");
@@ -862,7 +867,7 @@ int main(int argc, char** argv) {
     if (*cell) return cmd_cell(common, scenario, out);
     if (*render)
       return cmd_render(common, scenario, out, cameras, width, height, with_scan, with_truth);
-    if (*scan) return cmd_scan(common, scenario, out);
+    if (*scan) return cmd_scan(common, scenario, out, scan_seed);
     if (*det) return cmd_detect(common, scan_path, cad_path, pose_path, out);
     if (*run)
       return cmd_run(common, scenario, out, run_seed, sets, run_video, video_path, no_report,

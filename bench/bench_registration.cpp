@@ -97,7 +97,7 @@ int main(int argc, char** argv) {
   app.add_option("--datasets", datasets, "Comma list of bunny, dragon, armadillo, casting")
       ->capture_default_str();
   app.add_option("--methods", methods,
-                 "Comma list of ours, sacia-ndt, ndt-icp, iss-3dsc-icp, fpcs-icp")
+                 "Comma list of ours, sacia-ndt, sacia-ndt-icp, ndt-icp, iss-3dsc-icp, fpcs-icp")
       ->capture_default_str();
   app.add_option("--trials", trials,
                  "Trials per configuration for ours (N), or per method (ours=100,sacia-ndt=10,...)")

@@ -30,7 +30,8 @@ namespace flashtwin::bench {
 namespace {
 
 const std::vector<std::string> kDatasets{"bunny", "dragon", "armadillo", "casting"};
-const std::vector<std::string> kMethods{"ours", "sacia-ndt", "ndt-icp", "iss-3dsc-icp", "fpcs-icp"};
+const std::vector<std::string> kMethods{"ours", "sacia-ndt", "sacia-ndt-icp", "ndt-icp", "iss-3dsc-icp",
+                                        "fpcs-icp"};
 const std::vector<std::string> kOverlaps{"full", "partial"};
 
 constexpr double kSuccessRotationDeg = 1.0;

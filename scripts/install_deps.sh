@@ -8,7 +8,7 @@ set -euo pipefail
 PACKAGES=(build-essential cmake ccache pkg-config git
   libeigen3-dev libnanoflann-dev libyaml-cpp-dev libspdlog-dev nlohmann-json3-dev libcli11-dev
   liburdfdom-dev libassimp-dev libpcl-dev libembree-dev libopenvdb-dev libtbb-dev
-  libmujoco-dev libmujoco-samples libosmesa6-dev libstb-dev ffmpeg
+  libmujoco-dev libmujoco-samples libosmesa6-dev libstb-dev zlib1g-dev ffmpeg
   libgtest-dev libgmock-dev libbenchmark-dev
   "$@")
 

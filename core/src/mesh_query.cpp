@@ -70,10 +70,22 @@ int MeshBvh::build(int first, int count, int depth) {
 }
 
 ClosestPoint MeshBvh::closest(const Vec3& p, double max_distance) const {
+  return closest(p, max_distance, -1);
+}
+
+ClosestPoint MeshBvh::closest(const Vec3& p, double max_distance, int hint_triangle) const {
   ClosestPoint best;
   best.distance = max_distance;
   if (nodes_.empty()) return best;
   double best2 = max_distance * max_distance;
+  // The search starts bounded by the hint's squared distance, nudged up so that the true
+  // minimum stays strictly below it: the winner is then accepted exactly as without a hint.
+  if (hint_triangle >= 0 && static_cast<std::size_t>(hint_triangle) < mesh_.triangles.size()) {
+    const auto& t = mesh_.triangles[static_cast<std::size_t>(hint_triangle)];
+    const double d2 = (closest_on_triangle(p, mesh_.vertices[t[0]], mesh_.vertices[t[1]],
+                                           mesh_.vertices[t[2]]) - p).squaredNorm();
+    best2 = std::min(best2, d2 * (1 + 1e-9) + 1e-300);
+  }
   // Depth-first, nearer child first, pruned by box distance.
   int stack[128];
   int top = 0;

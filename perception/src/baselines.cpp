@@ -54,16 +54,18 @@ namespace flashtwin::perception {
 
 Baseline baseline_from_string(const std::string& s) {
   if (s == "sacia-ndt") return Baseline::kSacIaNdt;
+  if (s == "sacia-ndt-icp") return Baseline::kSacIaNdtIcp;
   if (s == "ndt-icp") return Baseline::kNdtIcp;
   if (s == "iss-3dsc-icp") return Baseline::kIss3dscIcp;
   if (s == "fpcs-icp") return Baseline::kFpcsIcp;
-  throw ArgumentError("baseline: expected one of sacia-ndt, ndt-icp, iss-3dsc-icp, fpcs-icp, got \"" +
+  throw ArgumentError("baseline: expected one of sacia-ndt, sacia-ndt-icp, ndt-icp, iss-3dsc-icp, fpcs-icp, got \"" +
                       s + "\"");
 }
 
 std::string to_string(Baseline b) {
   switch (b) {
     case Baseline::kSacIaNdt: return "sacia-ndt";
+    case Baseline::kSacIaNdtIcp: return "sacia-ndt-icp";
     case Baseline::kNdtIcp: return "ndt-icp";
     case Baseline::kIss3dscIcp: return "iss-3dsc-icp";
     case Baseline::kFpcsIcp: return "fpcs-icp";
@@ -279,9 +281,10 @@ struct Outcome {
   std::string stage, failure;  // failure: why the pipeline produced no pose
 };
 
-Outcome run_sacia_ndt(const Inputs& in) {
+// SAC-IA (FPFH) + NDT, and with `icp` a final ICP on the finer voxel grid as in ndt-icp.
+Outcome run_sacia_ndt(const Inputs& in, bool icp = false) {
   Outcome o;
-  o.stage = "sacia+ndt";
+  o.stage = icp ? "sacia+ndt+icp" : "sacia+ndt";
   const auto t0 = Clock::now();
   const double voxel = kCoarseVoxel * in.diag;
   Cloud::Ptr src = voxel_grid(in.source, voxel), tgt = voxel_grid(in.target, voxel);
@@ -332,6 +335,13 @@ Outcome run_sacia_ndt(const Inputs& in) {
                 src->size(), tgt->size(), t_features, t_sac - t_features, seconds_since(t0) - t_sac);
   o.converged = ndt_ok;
   if (!ndt_ok) o.failure = "NDT did not converge";
+  if (icp) {
+    bool icp_ok = false;
+    o.T = refine_icp(voxel_grid(in.source, kIcpVoxel * in.diag), in.target, in.target_tree, o.T,
+                     in.diag, icp_ok);
+    o.converged = o.converged && icp_ok;
+    if (!icp_ok && o.failure.empty()) o.failure = "ICP did not converge";
+  }
   return o;
 }
 
@@ -502,6 +512,7 @@ RegistrationResult register_baseline(Baseline method, const PointCloud& source,
   Outcome o;
   switch (method) {
     case Baseline::kSacIaNdt: o = run_sacia_ndt(in); break;
+    case Baseline::kSacIaNdtIcp: o = run_sacia_ndt(in, true); break;
     case Baseline::kNdtIcp: o = run_ndt_icp(in); break;
     case Baseline::kIss3dscIcp: o = run_iss_3dsc_icp(in); break;
     case Baseline::kFpcsIcp: o = run_fpcs_icp(in); break;

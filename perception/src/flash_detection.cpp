@@ -331,11 +331,19 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
   const std::size_t m = crop.size();
   std::vector<double> dist(m);
   std::vector<int> tri(m);
-#pragma omp parallel for schedule(dynamic, 4096) if (m >= 8192)
-  for (std::ptrdiff_t k = 0; k < static_cast<std::ptrdiff_t>(m); ++k) {
-    const auto cp = cad_C.closest(pc[static_cast<std::size_t>(k)], far);
-    dist[static_cast<std::size_t>(k)] = cp.triangle < 0 ? far : cp.distance;
-    tri[static_cast<std::size_t>(k)] = cp.triangle;
+  // In chunks of consecutive points (neighbours along a scan line), each query hinted with the
+  // previous answer: the search starts bounded, with the same result.
+  const std::ptrdiff_t chunk = 4096, chunks = (static_cast<std::ptrdiff_t>(m) + chunk - 1) / chunk;
+#pragma omp parallel for schedule(dynamic, 1) if (m >= 8192)
+  for (std::ptrdiff_t c = 0; c < chunks; ++c) {
+    int hint = -1;
+    const auto end = std::min<std::size_t>(m, static_cast<std::size_t>((c + 1) * chunk));
+    for (auto k = static_cast<std::size_t>(c * chunk); k < end; ++k) {
+      const auto cp = cad_C.closest(pc[k], far, hint);
+      dist[k] = cp.triangle < 0 ? far : cp.distance;
+      tri[k] = cp.triangle;
+      if (cp.triangle >= 0) hint = cp.triangle;
+    }
   }
 
   // Noise: points on the surface have |distance| ~ |N(0, σ)|, so σ ≈ median / 0.6745 over the
@@ -826,7 +834,7 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       // plane fitted to a few points of a partly seen ring can be tens of degrees off.
       {
         Mat3 M = Mat3::Zero();
-        for (const auto& n : path.normals_C) M += n * n.transpose();
+        for (const auto& nrm : path.normals_C) M += nrm * nrm.transpose();
         M /= static_cast<double>(path.normals_C.size());
         const Eigen::SelfAdjointEigenSolver<Mat3> es(M);  // ascending eigenvalues
         const Vec3 along_wall = reg.normal_C - reg.normal_C.dot(es.eigenvectors().col(2)) *

@@ -3,6 +3,9 @@
 #include <nanoflann.hpp>
 
 #include <Eigen/Core>
+#include <cmath>
+#include <cstdint>
+#include <limits>
 #include <memory>
 #include <vector>
 
@@ -21,6 +24,16 @@ class KdTree {
     if (size() == 0) return false;
     return index_.knnSearch(q.data(), 1, &idx, &d2) == 1;
   }
+  /// True when some point lies within squared distance d2_max (inclusive) of q: the same
+  /// answer as nearest() and d2 ≤ d2_max, but the search is bounded by d2_max from the start
+  /// and stops at the first point found (far queries end after a few nodes).
+  bool any_within(const Eigen::Vector3f& q, float d2_max) const {
+    if (size() == 0) return false;
+    // nanoflann accepts a point when its distance is strictly below worstDist().
+    AnyWithin rs{std::nextafter(d2_max, std::numeric_limits<float>::infinity())};
+    index_.findNeighbors(rs, q.data(), nanoflann::SearchParams());
+    return rs.found;
+  }
   /// k nearest neighbours (sorted by distance); returns how many were found.
   std::size_t knn(const Eigen::Vector3f& q, std::size_t k, std::uint32_t* idx, float* d2) const {
     if (size() == 0) return 0;
@@ -37,6 +50,18 @@ class KdTree {
   }
 
  private:
+  // nanoflann result set: a fixed search radius; the first point inside ends the search.
+  struct AnyWithin {
+    float bound;
+    bool found = false;
+    std::size_t size() const { return found ? 1 : 0; }
+    bool full() const { return found; }
+    bool addPoint(float, std::uint32_t) {
+      found = true;
+      return false;  // stop searching
+    }
+    float worstDist() const { return bound; }
+  };
   struct Adaptor {
     const std::vector<Eigen::Vector3f>* pts;
     std::size_t kdtree_get_point_count() const { return pts->size(); }

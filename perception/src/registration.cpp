@@ -4,7 +4,12 @@
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <array>
 #include <chrono>
+#include <cstdint>
+#include <deque>
+#include <mutex>
+#include <limits>
 #include <cmath>
 #include <numeric>
 #include <unordered_map>
@@ -95,6 +100,73 @@ void principal_axes(const std::vector<Vec3f>& pts, Vec3& centroid, Mat3& axes) {
   axes.col(2) = es.eigenvectors().col(0);
 }
 
+// Every cell within r cells of a dense sample, with the sample nearest the cell's centre (ties:
+// the lower index). A dense array over the samples' cell box (at the default fine_voxel at most
+// ~(250·0.58 + 2r)^3 cells, ~30 MB: the box of a given diagonal is largest as a cube), else a
+// hash map; both give the same cells and samples.
+std::vector<std::pair<std::uint64_t, std::uint32_t>> nearest_sample_per_cell(
+    const ModelTarget::Impl& t, int r) {
+  const float cell = static_cast<float>(t.cell);
+  // Each candidate: the cell centre around sample i's own cell c0 and its squared distance.
+  auto visit = [&](auto&& offer) {
+    for (std::uint32_t i = 0; i < t.dense.size(); ++i) {
+      const Vec3f& q = t.dense.points[i];
+      const Eigen::Vector3f c0 = (q / cell).array().floor();
+      for (int dx = -r; dx <= r; ++dx)
+        for (int dy = -r; dy <= r; ++dy)
+          for (int dz = -r; dz <= r; ++dz) {
+            const Vec3f centre = (c0 + Vec3f(dx + 0.5f, dy + 0.5f, dz + 0.5f)) * cell;
+            offer(centre, (centre - q).squaredNorm(), i);
+          }
+    }
+  };
+  auto cell_of = [&](float v) { return static_cast<std::int64_t>(std::floor(v / t.cell)); };
+  std::array<std::int64_t, 3> lo{INT64_MAX, INT64_MAX, INT64_MAX}, hi{INT64_MIN, INT64_MIN, INT64_MIN};
+  for (const Vec3f& q : t.dense.points)
+    for (int k = 0; k < 3; ++k) {
+      // r + 2: the float cell of a centre may round one cell either way.
+      lo[k] = std::min(lo[k], cell_of(q[k]) - r - 2);
+      hi[k] = std::max(hi[k], cell_of(q[k]) + r + 2);
+    }
+  const std::array<std::int64_t, 3> n{hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, hi[2] - lo[2] + 1};
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> out;
+  constexpr std::int64_t kMaxDenseCells = 64LL << 20;
+  if (!t.dense.points.empty() &&
+      static_cast<double>(n[0]) * static_cast<double>(n[1]) * static_cast<double>(n[2]) <=
+          static_cast<double>(kMaxDenseCells)) {
+    constexpr std::uint32_t kNone = UINT32_MAX;
+    std::vector<float> d2_of(static_cast<std::size_t>(n[0] * n[1] * n[2]),
+                             std::numeric_limits<float>::infinity());
+    std::vector<std::uint32_t> sample_of(d2_of.size(), kNone);
+    visit([&](const Vec3f& centre, float d2, std::uint32_t i) {
+      const std::int64_t x = cell_of(centre.x()) - lo[0], y = cell_of(centre.y()) - lo[1],
+                         z = cell_of(centre.z()) - lo[2];
+      FT_ASSERT(x >= 0 && x < n[0] && y >= 0 && y < n[1] && z >= 0 && z < n[2]);
+      const std::size_t idx = static_cast<std::size_t>((z * n[1] + y) * n[0] + x);
+      if (sample_of[idx] == kNone || d2 < d2_of[idx]) {
+        d2_of[idx] = d2;
+        sample_of[idx] = i;
+      }
+    });
+    for (std::size_t idx = 0; idx < sample_of.size(); ++idx) {
+      if (sample_of[idx] == kNone) continue;
+      const auto i = static_cast<std::int64_t>(idx);
+      const std::int64_t x = i % n[0] + lo[0], y = (i / n[0]) % n[1] + lo[1], z = i / (n[0] * n[1]) + lo[2];
+      const auto bits = [](std::int64_t v) { return static_cast<std::uint64_t>(v & 0x1fffff); };
+      out.emplace_back((bits(x) << 42) | (bits(y) << 21) | bits(z), sample_of[idx]);
+    }
+    return out;
+  }
+  std::unordered_map<std::uint64_t, std::pair<float, std::uint32_t>> best;
+  best.reserve(t.dense.size() * 30);
+  visit([&](const Vec3f& centre, float d2, std::uint32_t i) {
+    auto [it, fresh] = best.emplace(t.cell_key(centre), std::make_pair(d2, i));
+    if (!fresh && d2 < it->second.first) it->second = {d2, i};
+  });
+  for (const auto& [key, v] : best) out.emplace_back(key, v.second);
+  return out;
+}
+
 void finish_target(ModelTarget::Impl& t, const TargetParams& p) {
   t.diag = bbox_diagonal(t.dense.points);
   t.dense_tree = std::make_unique<KdTree>(t.dense.points);
@@ -112,31 +184,17 @@ void finish_target(ModelTarget::Impl& t, const TargetParams& p) {
   std::sort(t.pairs.begin(), t.pairs.end(), [](const auto& x, const auto& y) { return x.d < y.d; });
   // The band: cells within 3 cells of any sample, each with the sample nearest its centre.
   t.cell = t.diag * p.fine_voxel;
-  const int r = 3;
-  std::unordered_map<std::uint64_t, std::pair<float, std::uint32_t>> best;
-  best.reserve(t.dense.size() * 30);
-  for (std::uint32_t i = 0; i < t.dense.size(); ++i) {
-    const Vec3f& q = t.dense.points[i];
-    const Eigen::Vector3f c0 = (q / static_cast<float>(t.cell)).array().floor();
-    for (int dx = -r; dx <= r; ++dx)
-      for (int dy = -r; dy <= r; ++dy)
-        for (int dz = -r; dz <= r; ++dz) {
-          const Vec3f centre = (c0 + Vec3f(dx + 0.5f, dy + 0.5f, dz + 0.5f)) * static_cast<float>(t.cell);
-          const float d2 = (centre - q).squaredNorm();
-          auto [it, fresh] = best.emplace(t.cell_key(centre), std::make_pair(d2, i));
-          if (!fresh && d2 < it->second.first) it->second = {d2, i};
-        }
-  }
+  const std::vector<std::pair<std::uint64_t, std::uint32_t>> best = nearest_sample_per_cell(t, 3);
   std::uint64_t cap = 16;
   while (cap < 2 * best.size()) cap <<= 1;
   t.band_keys.assign(cap, 0);
   t.band_vals.assign(cap, 0);
   t.band_mask = cap - 1;
-  for (const auto& [key, v] : best) {
+  for (const auto& [key, sample] : best) {
     std::uint64_t h = ModelTarget::Impl::mix(key + 1) & t.band_mask;
     while (t.band_keys[h] != 0) h = (h + 1) & t.band_mask;
     t.band_keys[h] = key + 1;
-    t.band_vals[h] = v.second;
+    t.band_vals[h] = sample;
   }
 }
 
@@ -179,6 +237,65 @@ std::shared_ptr<const ModelTarget> ModelTarget::from_mesh(const TriangleMesh& me
   }
   finish_target(*impl, params);
   return std::shared_ptr<const ModelTarget>(new ModelTarget(std::move(impl)));
+}
+
+namespace {
+
+struct CachedTarget {
+  std::uint64_t hash = 0;
+  TriangleMesh mesh;
+  TargetParams params;
+  std::shared_ptr<const ModelTarget> target;
+};
+
+// FNV-1a over the mesh's bytes and the parameters.
+std::uint64_t target_hash(const TriangleMesh& mesh, const TargetParams& p) {
+  std::uint64_t h = 1469598103934665603ULL;
+  auto add = [&](const void* data, std::size_t n) {
+    const auto* b = static_cast<const unsigned char*>(data);
+    for (std::size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 1099511628211ULL;
+  };
+  add(mesh.vertices.data(), mesh.vertices.size() * sizeof(mesh.vertices[0]));
+  add(mesh.triangles.data(), mesh.triangles.size() * sizeof(mesh.triangles[0]));
+  add(&p.mesh_samples, sizeof p.mesh_samples);
+  add(&p.coarse_voxel, sizeof p.coarse_voxel);
+  add(&p.fine_voxel, sizeof p.fine_voxel);
+  add(&p.normal_k, sizeof p.normal_k);
+  add(&p.seed, sizeof p.seed);
+  return h;
+}
+
+bool same_target(const CachedTarget& c, std::uint64_t hash, const TriangleMesh& mesh,
+                 const TargetParams& p) {
+  return c.hash == hash && c.params.mesh_samples == p.mesh_samples &&
+         c.params.coarse_voxel == p.coarse_voxel && c.params.fine_voxel == p.fine_voxel &&
+         c.params.normal_k == p.normal_k && c.params.seed == p.seed &&
+         c.mesh.vertices == mesh.vertices && c.mesh.triangles == mesh.triangles;
+}
+
+}  // namespace
+
+std::shared_ptr<const ModelTarget> ModelTarget::from_mesh_cached(const TriangleMesh& mesh,
+                                                                 const TargetParams& params) {
+  static std::mutex mutex;
+  static std::deque<CachedTarget> cache;  // most recent first
+  const std::uint64_t hash = target_hash(mesh, params);
+  {
+    const std::lock_guard<std::mutex> lock(mutex);
+    for (auto it = cache.begin(); it != cache.end(); ++it)
+      if (same_target(*it, hash, mesh, params)) {
+        CachedTarget hit = std::move(*it);
+        cache.erase(it);
+        cache.push_front(std::move(hit));
+        return cache.front().target;
+      }
+  }
+  // Built outside the lock (two threads may build the same target once each: same result).
+  auto target = from_mesh(mesh, params);
+  const std::lock_guard<std::mutex> lock(mutex);
+  cache.push_front({hash, mesh, params, target});
+  if (cache.size() > 4) cache.pop_back();
+  return target;
 }
 
 std::shared_ptr<const ModelTarget> ModelTarget::from_cloud(const PointCloud& cloud,
@@ -357,6 +474,61 @@ bool line_params(const Vec3& a0, const Vec3& a1, const Vec3& b0, const Vec3& b1,
   return true;
 }
 
+// Points in a uniform grid of cells of edge `cell` over a box (counting sort into cells): radius
+// queries return indices in increasing order. Rebuilt per 4PCS base (a k-d tree build per base
+// was a third of the time of registering a partial view).
+class CellIndex {
+ public:
+  CellIndex(const Eigen::AlignedBox3f& box, float cell) : lo_(box.min()), inv_(1 / cell) {
+    for (int k = 0; k < 3; ++k)
+      n_[k] = std::max(1, static_cast<int>(std::ceil((box.max()[k] - box.min()[k]) * inv_)) + 1);
+  }
+  void build(const std::vector<Vec3f>& pts) {
+    const std::size_t cells = static_cast<std::size_t>(n_[0]) * n_[1] * n_[2];
+    start_.assign(cells + 1, 0);
+    cell_of_.resize(pts.size());
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      cell_of_[i] = cell(pts[i]);
+      ++start_[cell_of_[i] + 1];
+    }
+    for (std::size_t c = 0; c < cells; ++c) start_[c + 1] += start_[c];
+    order_.resize(pts.size());
+    std::vector<std::uint32_t> fill(start_.begin(), start_.end() - 1);
+    for (std::size_t i = 0; i < pts.size(); ++i)
+      order_[fill[cell_of_[i]]++] = static_cast<std::uint32_t>(i);
+  }
+  // Indices of pts within distance r of q (r ≤ the cell edge), in increasing order.
+  void within(const std::vector<Vec3f>& pts, const Vec3f& q, float r,
+              std::vector<std::uint32_t>& out) const {
+    out.clear();
+    const Vec3f u = (q - lo_) * inv_;
+    const int c[3] = {static_cast<int>(std::floor(u.x())), static_cast<int>(std::floor(u.y())),
+                      static_cast<int>(std::floor(u.z()))};
+    for (int dz = -1; dz <= 1; ++dz)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const int x = c[0] + dx, y = c[1] + dy, z = c[2] + dz;
+          if (x < 0 || y < 0 || z < 0 || x >= n_[0] || y >= n_[1] || z >= n_[2]) continue;
+          const std::size_t id = (static_cast<std::size_t>(z) * n_[1] + y) * n_[0] + x;
+          for (std::uint32_t k = start_[id]; k < start_[id + 1]; ++k)
+            if ((pts[order_[k]] - q).squaredNorm() <= r * r) out.push_back(order_[k]);
+        }
+    std::sort(out.begin(), out.end());
+  }
+
+ private:
+  std::size_t cell(const Vec3f& p) const {
+    int c[3];
+    for (int k = 0; k < 3; ++k)
+      c[k] = std::clamp(static_cast<int>(std::floor((p[k] - lo_[k]) * inv_)), 0, n_[k] - 1);
+    return (static_cast<std::size_t>(c[2]) * n_[1] + c[1]) * n_[0] + c[0];
+  }
+  Vec3f lo_;
+  float inv_;
+  int n_[3];
+  std::vector<std::uint32_t> start_, cell_of_, order_;
+};
+
 std::vector<Hypothesis> four_pcs(const std::vector<Vec3f>& src, const ModelTarget::Impl& tgt,
                                  const RegistrationParams& p, Rng& rng) {
   std::vector<Hypothesis> out;
@@ -370,7 +542,11 @@ std::vector<Hypothesis> four_pcs(const std::vector<Vec3f>& src, const ModelTarge
   for (int k = 0; k < 300; ++k) verify.push_back(src[rng.next() % n]);
   const float v2 = static_cast<float>(delta * delta);
   double best_score = 0;
-  std::vector<std::pair<std::uint32_t, float>> nb;
+  std::vector<std::uint32_t> nb;
+  // Midpoints lie in the target's bounding box (convex combinations of its points).
+  Eigen::AlignedBox3f box;
+  for (const auto& q : tgt.fpcs_points) box.extend(q);
+  CellIndex e1_grid(box, static_cast<float>(delta));
   for (int base = 0; base < p.fpcs_bases; ++base) {
     // Wide coplanar base: p1 random, p2 and p3 far from it, p4 near their plane and far.
     const Vec3 b1 = src[rng.next() % n].cast<double>();
@@ -440,14 +616,14 @@ std::vector<Hypothesis> four_pcs(const std::vector<Vec3f>& src, const ModelTarge
         e1_pairs.emplace_back(a, b);
       }
     if (e1.empty()) continue;
-    const KdTree e1_tree(e1);
+    e1_grid.build(e1);
     int candidates = 0;
     for (auto it = lo2; it != hi2 && candidates < 400; ++it)
       for (int o = 0; o < 2 && candidates < 400; ++o) {
         const std::uint32_t c = o ? it->b : it->a, d = o ? it->a : it->b;
         const Vec3f e2 = tgt.fpcs_points[c] + static_cast<float>(r2) * (tgt.fpcs_points[d] - tgt.fpcs_points[c]);
-        e1_tree.radius(e2, static_cast<float>(delta), nb);
-        for (const auto& [k, dist] : nb) {
+        e1_grid.within(e1, e2, static_cast<float>(delta), nb);
+        for (const std::uint32_t k : nb) {
           const auto [a, b] = e1_pairs[k];
           const Vec3 Q[4] = {tgt.fpcs_points[a].cast<double>(), tgt.fpcs_points[b].cast<double>(),
                              tgt.fpcs_points[c].cast<double>(), tgt.fpcs_points[d].cast<double>()};
@@ -467,10 +643,8 @@ std::vector<Hypothesis> four_pcs(const std::vector<Vec3f>& src, const ModelTarge
           const Vec3f t = T.translation().cast<float>();
           std::size_t in = 0, seen = 0;
           for (const auto& v : verify) {
-            std::uint32_t j;
-            float dd;
             ++seen;
-            if (tgt.dense_tree->nearest(R * v + t, j, dd) && dd <= v2) ++in;
+            if (tgt.dense_tree->any_within(R * v + t, v2)) ++in;
             if (seen == 60 && static_cast<double>(in) / 60 < 0.5 * best_score) break;
           }
           const double score = static_cast<double>(in) / static_cast<double>(verify.size());
@@ -695,6 +869,9 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
     }
     return e;
   };
+  const auto count = [](const std::vector<char>& e) {
+    return static_cast<double>(std::count(e.begin(), e.end(), 1));
+  };
   {
     IcpOptions quick = fine_icp;
     quick.iterations = 8;
@@ -713,8 +890,7 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
       for (const auto& f : finalists) dup_after = dup_after || !distinct(f.T, r.T, diag);
       if (dup_after) continue;
       expl.push_back(explained(r.T));
-      const double count = static_cast<double>(std::count(expl.back().begin(), expl.back().end(), 1));
-      finalists.push_back({r.T, count, h.stage});
+      finalists.push_back({r.T, count(expl.back()), h.stage});
       if (finalists.size() >= 16 || alone) break;
     }
   }
@@ -752,7 +928,6 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   // Local search around the winner: small turns about the model's principal axes (the sweep's
   // 30° grid and short ICP runs can leave a near-symmetric part a few degrees off).
   if (!clear) {
-    auto count = [](const std::vector<char>& e) { return static_cast<double>(std::count(e.begin(), e.end(), 1)); };
     Pose centre = finalists[win].T;
     double best_count = finalists[win].score;
     for (double step : {8.0, 4.0, 2.0, 1.0}) {
@@ -784,14 +959,20 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
 
   IcpResult best = icp(sub.points, sub.normals, sub_tree, dense_t, diag, hyps[0].T, fine_icp);
   // Polish: every fine point, robust point-to-plane against the O(1) band lookup (the
-  // noise-limited accuracy grows with the number of points).
-  if (p.point_to_plane) {
+  // noise-limited accuracy grows with the number of points). Returns the most weakly
+  // constrained translation direction (target frame) and its eigenvalue ratio.
+  struct Weak {
+    Vec3 dir = Vec3::UnitX();
+    double ratio = 1;
+  };
+  auto polish = [&](Pose& T) {
+    Weak weak;
     const auto n = static_cast<long>(fine.size());
     std::vector<float> resid(fine.size());
     std::vector<std::uint32_t> match(fine.size());
     for (int it = 0; it < p.polish_iterations; ++it) {
-      const Eigen::Matrix3f R = best.T.linear().cast<float>();
-      const Vec3f t = best.T.translation().cast<float>();
+      const Eigen::Matrix3f R = T.linear().cast<float>();
+      const Vec3f t = T.translation().cast<float>();
 #pragma omp parallel for schedule(static) if (n >= 8192)
       for (long i = 0; i < n; ++i) {
         std::uint32_t j;
@@ -821,7 +1002,7 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
         if (resid[i] == -1.f) continue;
         const double e = resid[i];
         if (std::abs(e) > 10 * scale) continue;
-        const Vec3 pp = best.T * fine.points[i].cast<double>();
+        const Vec3 pp = T * fine.points[i].cast<double>();
         const Vec3 nq = tgt.dense.normals[match[i]].cast<double>();
         Eigen::Matrix<double, 6, 1> a;
         a << pp.cross(nq), nq;
@@ -831,11 +1012,54 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
       }
       const Eigen::Matrix<double, 6, 1> x = AtA.ldlt().solve(Atb);
       if (!x.allFinite()) break;
+      {
+        // How well the points pin each translation direction: the spectrum of the
+        // translational block of the normal equations.
+        const Eigen::SelfAdjointEigenSolver<Mat3> es(AtA.bottomRightCorner<3, 3>());
+        const Vec3 ev = es.eigenvalues();
+        weak.dir = es.eigenvectors().col(0);
+        weak.ratio = ev[2] > 0 ? ev[0] / ev[2] : 1.0;
+        spdlog::debug("register: polish {} translation constraint eigenvalues {:.3g} {:.3g} {:.3g} "
+                      "(weakest along [{:.3f} {:.3f} {:.3f}] in the target frame)",
+                      it, ev[0], ev[1], ev[2], weak.dir.x(), weak.dir.y(), weak.dir.z());
+      }
       Pose dT = Pose::Identity();
       dT.linear() = skew_exp(x.head<3>());
       dT.translation() = x.tail<3>();
-      best.T = dT * best.T;
+      T = dT * T;
       if (scale <= 3.5 * sigma * 1.0001 && x.norm() < 1e-8) break;
+    }
+    return weak;
+  };
+  if (p.point_to_plane) {
+    const Weak weak = polish(best.T);
+    // A plate's long axis can rest on a few features (ends behind fixture blocks, holes): the
+    // robust polish then stops in a local minimum a rib or hole spacing away. Along a weak
+    // direction, try offsets up to diag/15 and keep the one whose pose explains the most
+    // points, then polish again from it.
+    if (weak.ratio < p.weak_direction_ratio) {
+      const double step = 0.25 * diag * p.fine_voxel, reach = diag / 15;
+      const double base_count = count(explained(best.T));
+      double best_count = base_count, best_offset = 0;
+      for (double d = -reach; d <= reach + 1e-12; d += step) {
+        Pose S = Pose::Identity();
+        S.translation() = d * weak.dir;
+        const double c = count(explained(S * best.T));
+        if (c > best_count) {
+          best_count = c;
+          best_offset = d;
+        }
+      }
+      spdlog::debug("register: weak direction [{:.3f} {:.3f} {:.3f}] (eigenvalue ratio {:.3g}): "
+                    "best offset {:.2f} mm explains {:.0f} vs {:.0f}",
+                    weak.dir.x(), weak.dir.y(), weak.dir.z(), weak.ratio, best_offset * 1e3,
+                    best_count, base_count);
+      if (best_count > base_count * (1 + p.weak_direction_gain)) {
+        Pose S = Pose::Identity();
+        S.translation() = best_offset * weak.dir;
+        best.T = S * best.T;
+        polish(best.T);
+      }
     }
   }
   const auto t_icp = std::chrono::steady_clock::now();

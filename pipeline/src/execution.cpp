@@ -63,10 +63,10 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
         sim::execute_trajectory(*model, tr, &grid, tool, sc.execution.force, ep);
     ++executed;
     spdlog::debug("execution: path {}: {} ({}), {:.1f} s simulated in {:.2f} s, tracking rmse "
-                  "{:.3f} mm, flash removed {:.2f} mm3, gouge {:.3f} mm3",
+                  "{:.3f} mm, flash removed {:.2f} mm3, gouge {:.3f} mm3, {} removal steps in {} steps",
                   k, sim::to_string(r.status), r.message, r.sim_time, r.wall_time,
                   r.tracking_rmse * 1e3, r.removed_flash_volume * 1e9,
-                  r.removed_body_volume * 1e9);
+                  r.removed_body_volume * 1e9, r.removal_steps, r.steps);
     const auto& L = r.log;
     for (std::size_t i = 0; i < L.t.size(); ++i) {
       out.t.push_back(t0 + L.t[i]);

@@ -3,6 +3,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <sstream>
@@ -269,6 +270,8 @@ std::string write_report(const std::string& dir, const ReportInputs& in) {
       renders.push_back({what, "", e.what()});
     }
   };
+  using Clock = std::chrono::steady_clock;
+  const auto t_renders = Clock::now();
   sim::RenderRequest req;
   req.cameras = {"overview", "casting_closeup"};
   render(in.scan.files.mjcf, req, "before_", "Before grinding");
@@ -286,7 +289,8 @@ std::string write_report(const std::string& dir, const ReportInputs& in) {
       sreq.points_W.push_back(X_WM * cloud.points[i].cast<double>());
       sreq.colors.push_back(res.detection.labels[i] == 1 ? Rgb{255, 90, 0} : Rgb{40, 170, 220});
     }
-    sreq.point_radius = 0.0006;
+    sreq.point_radius = 0.0005;
+    sreq.cubes = true;  // 8000 spheres took ~1.6 s of software rendering
     render(in.scan.files.mjcf, sreq, "scan_",
            "Scan as perception labelled it: flash orange, casting blue");
   }
@@ -302,6 +306,7 @@ std::string write_report(const std::string& dir, const ReportInputs& in) {
     }
   }
 
+  const auto t_plots = Clock::now();
   const auto plot = [&](const std::string& name, const std::string& caption, const Image& img) {
     const std::string p = (img_dir / name).string();
     write_png(p, img);
@@ -334,6 +339,9 @@ std::string write_report(const std::string& dir, const ReportInputs& in) {
          residual_plot(in));
   }
 
+  spdlog::debug("report: renders {:.2f} s, plots {:.2f} s",
+                std::chrono::duration<double>(t_plots - t_renders).count(),
+                std::chrono::duration<double>(Clock::now() - t_plots).count());
   // The page.
   std::ostringstream h;
   const bool ok = res.exit_code == 0;

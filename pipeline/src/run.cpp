@@ -53,6 +53,15 @@ void progress(const RunOptions& o, const std::string& stage, double f) {
 
 json finite_or_null(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
 
+planner::GrindPath grind_path_of(const perception::FlashPath& path) {
+  planner::GrindPath gp;
+  gp.points_C = path.points_C;
+  gp.normals_C = path.normals_C;
+  gp.fin_normal_C = path.fin_normal_C;
+  gp.closed = path.closed;
+  return gp;
+}
+
 void write_paths(const std::string& dir, const perception::DetectionResult& det) {
   ensure_directory(dir);
   json j;
@@ -204,7 +213,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   // calibrated (nominal), never the truth.
   progress(opt, "registration", 0.15);
   const auto t_perc = Clock::now();
-  const auto target = perception::ModelTarget::from_mesh(setup.casting.nominal);
+  const auto target = perception::ModelTarget::from_mesh_cached(setup.casting.nominal);
   perception::RegistrationParams rp;
   rp.remove_support_plane = true;
   rp.viewpoint = Vec3::Zero();
@@ -294,11 +303,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     json plans = json::array();
     for (std::size_t k = 0; k < det.paths.size(); ++k) {
       const auto& p = det.paths[k];
-      planner::GrindPath gp;
-      gp.points_C = p.points_C;
-      gp.normals_C = p.normals_C;
-      gp.fin_normal_C = p.fin_normal_C;
-      gp.closed = p.closed;
+      const planner::GrindPath gp = grind_path_of(p);
       planner::GrindResult g;
       try {
         g = planner::plan_grind(sc.robot, X_BC_est, gp, sc.grind);
@@ -319,7 +324,9 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
         planned_paths.push_back({k, g});
         if (write) {
           const std::string pd = (dir / "plan" / ("path_" + std::to_string(k))).string();
-          planner::write_grind_outputs(g, pd);
+          // The joint plots belong to the report (--no-report skips them).
+          const std::string csv = planner::trajectory_csv(g);
+          planner::write_grind_outputs(g, pd, opt.report, csv);
           // The robot program a real KUKA controller would run (frames declared in it).
           planner::ProgramParams pp;
           pp.name = "flashtwin_path_" + std::to_string(k);
@@ -328,7 +335,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
           } catch (const ArgumentError& e) {
             spdlog::warn("path {}: no KRL program: {}", k, e.what());
           }
-          if (planned == 1) write_text_file((dir / "trajectory.csv").string(), planner::trajectory_csv(g));
+          if (planned == 1) write_text_file((dir / "trajectory.csv").string(), csv);
         }
       } else if (g.status == planner::GrindStatus::kToolTooLarge) {
         // Not a failure of the plan: this tool cannot do it (a real cell drills such holes or

@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "flashtwin/core/errors.hpp"
+#include "flashtwin/core/format.hpp"
 #include "flashtwin/planner/kinematics.hpp"
 
 namespace flashtwin::planner {
@@ -22,9 +23,8 @@ constexpr double kDeg2Rad = M_PI / 180.0;
 
 // Fixed-point number without a "-0.000" for values that round to zero.
 std::string fixed(double v, int decimals) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, "%.*f", decimals, v);
-  std::string s = buf;
+  std::string s;
+  append_fixed(s, v, decimals);
   if (s[0] == '-' && s.find_first_not_of("-0.") == std::string::npos) s.erase(0, 1);
   return s;
 }

@@ -10,6 +10,7 @@
 #include <utility>
 
 #include "flashtwin/core/errors.hpp"
+#include "flashtwin/core/format.hpp"
 
 namespace flashtwin::planner {
 
@@ -18,15 +19,6 @@ namespace {
 // Slower than this [m/s] counts as having to stop: the path cannot be followed continuously.
 constexpr double kFeedFloor = 1e-6;
 
-std::string strf(const char* f, ...) __attribute__((format(printf, 1, 2)));
-std::string strf(const char* f, ...) {
-  char buf[512];
-  va_list ap;
-  va_start(ap, f);
-  std::vsnprintf(buf, sizeof buf, f, ap);
-  va_end(ap);
-  return buf;
-}
 
 std::string num(double v) {
   return strf("%.17g", v);

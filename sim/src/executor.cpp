@@ -176,6 +176,26 @@ Vec3 towards_axis(const ToolParams& tool, const Pose& X_CT, const Vec3& p_C) {
   return len > 1e-3 * tool.radius ? Vec3(perp / len) : a;
 }
 
+// The tool's penetration of the nominal body at the last removal step, all in {C}: its depth,
+// the direction of the penalty force n (contact centroid → tool axis), the unit vector `inward`
+// from the nominal surface to the deepest body point inside the tool, the TCP position then,
+// and the contact centroid relative to the TCP (it moves with the tool).
+struct PenaltyContact {
+  double depth = 0;  // [m]
+  Vec3 n_C = Vec3::Zero(), inward_C = Vec3::Zero(), p_C = Vec3::Zero(), arm_C = Vec3::Zero();
+  // Depth with the TCP at p: the deepest point moves with the tool, the surface taken as the
+  // tangent plane at its closest surface point.
+  double depth_at(const Vec3& p) const { return std::max(0.0, depth + inward_C.dot(p - p_C)); }
+};
+
+// Unit vector from the nominal surface to an interior point (the closest surface point's
+// direction); `fallback` when the point lies on the surface.
+Vec3 inward_direction(const MeshBvh& nominal, const Vec3& p_C, const Vec3& fallback) {
+  const ClosestPoint cp = nominal.closest(p_C);
+  const Vec3 d = p_C - cp.point;
+  return d.norm() > 1e-9 ? Vec3(d.normalized()) : fallback;
+}
+
 // The rate (grinding) part of a process wrench in {C}, torque about the TCP.
 struct RateWrench {
   Vec3 force = Vec3::Zero(), torque = Vec3::Zero();
@@ -195,6 +215,14 @@ struct RemovalInterval {
   Vec3 dp_C = Vec3::Zero();
   RateWrench impulse;  // [N·s], [N·m·s]
 };
+
+// True when some geom on a body that moves (not welded to the world) can collide with anything.
+bool moving_geoms_collide(const mjModel* m) {
+  for (int g = 0; g < m->ngeom; ++g)
+    if ((m->geom_contype[g] || m->geom_conaffinity[g]) && m->body_weldid[m->geom_bodyid[g]] != 0)
+      return true;
+  return false;
+}
 
 bool bad_state(const mjModel* m, const mjData* d) {
   if (d->warning[mjWARN_BADQACC].number > 0 || d->warning[mjWARN_BADQPOS].number > 0 ||
@@ -233,6 +261,8 @@ void check_exec_params(const ExecParams& p) {
     bad("joint_tolerance", "a finite angle >= 0 [rad]", p.joint_tolerance);
   if (!(std::isfinite(p.removal_motion) && p.removal_motion >= 0))
     bad("removal_motion", "a finite number of voxels >= 0", p.removal_motion);
+  if (!(std::isfinite(p.removal_contact_motion) && p.removal_contact_motion >= 0))
+    bad("removal_contact_motion", "a finite number of voxels >= 0", p.removal_contact_motion);
   if (!(std::isfinite(p.removal_max_interval) && p.removal_max_interval > 0))
     bad("removal_max_interval", "a finite time > 0 [s]", p.removal_max_interval);
   if (!(std::isfinite(p.max_force) && p.max_force >= 0)) bad("max_force", "a finite force >= 0 [N] (0: off)", p.max_force);
@@ -274,9 +304,19 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
   m->opt.timestep = h;
   const CellIndex c = index_model(m);
   for (int i = 0; i < kNumJoints; ++i) m->actuator_ctrllimited[c.act[i]] = 0;
+  // The process model is the tool's only contact. When no geom of a moving body can collide
+  // (the cell's contract: arm geoms have contype = conaffinity = 0), MuJoCo's collision pass
+  // finds nothing and is skipped, with identical results.
+  if (!moving_geoms_collide(m)) m->opt.disableflags |= mjDSBL_CONTACT;
   const MjDataPtr data_ptr = make_data(m);
-  const MjDataPtr ffp = make_data(m);  // scratch for inverse dynamics at the reference
   mjData* d = data_ptr.get();
+  // Inverse dynamics at the reference, as a robot controller's model computes it: the rigid arm
+  // without contacts or constraints (which also spares the collision pass every step); its
+  // sensors are not read.
+  const MjModelPtr mffp(mj_copyModel(nullptr, m));
+  mjModel* mff = mffp.get();
+  mff->opt.disableflags |= mjDSBL_CONSTRAINT | mjDSBL_CONTACT | mjDSBL_SENSOR;
+  const MjDataPtr ffp = make_data(mff);
   mjData* dff = ffp.get();
 
   const std::vector<Vector6> dq_samples = velocities(trajectory);
@@ -354,6 +394,7 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
   std::deque<RemovalInterval> window;
   Vec3 pen_F_C = Vec3::Zero(), pen_tau_C = Vec3::Zero();
   double penalty = 0;
+  PenaltyContact contact;  // the last removal step's penetration of the body
   // The wrench applied to the tool: {W}, torque about the TCP.
   Vec3 F_W = Vec3::Zero(), tau_W = Vec3::Zero();
   double normal_force = 0, tangential_force = 0;
@@ -364,6 +405,7 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
   Vec3 normal_W = Vec3::Zero();  // last contact normal (material → tool axis)
   double delta = 0;              // admittance correction into the material [m]
   const double motion_trigger = grid ? params.removal_motion * grid->voxel_size() : 0;
+  const double contact_trigger = grid ? params.removal_contact_motion * grid->voxel_size() : 0;
 
   double track_sq = 0, force_sum = 0, force_err_sq = 0;
   std::size_t contact_steps = 0;
@@ -373,7 +415,7 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
   const std::size_t traj_steps = static_cast<std::size_t>(std::ceil(span / h - 1e-9));
   const std::size_t total_steps =
       traj_steps + static_cast<std::size_t>(std::llround(params.settle_time / h));
-  std::vector<mjtNum> jacp(3 * m->nv), jacr(3 * m->nv), x3(3 * m->nv);
+  std::vector<mjtNum> jacp(3 * m->nv), jacr(3 * m->nv), x3(3 * m->nv), tau_inv(m->nv);
   Vector6 grind_wrench_W = Vector6::Zero();  // last step's grinding force and torque (COM), {W}
 
   auto compare_samples = [&](double t, const Pose& X_WT, double horizon) {
@@ -399,6 +441,14 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
   for (; n < total_steps; ++n) {
     const double t_sim = static_cast<double>(n) * h;
     const double t = t0 + t_sim;
+    const bool log_step =
+        n % static_cast<std::size_t>(params.log_decimation) == 0 || n + 1 == total_steps;
+    // Sensors are read only on logged steps (unless a callback may read them at any step): the
+    // flange F/T sensor costs a pass over the bodies' forces. Their values there are unchanged.
+    if (!params.on_step) {
+      if (log_step) m->opt.disableflags &= ~mjDSBL_SENSOR;
+      else m->opt.disableflags |= mjDSBL_SENSOR;
+    }
     mj_step1(m, d);  // positions, velocities (and their sensors) of the current state
 
     const Pose X_WT = pose_of(d->site_xpos + 3 * c.tcp, d->site_xmat + 9 * c.tcp);
@@ -414,19 +464,23 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
       if (have_removal_pose)
         moved = (X_CT.translation() - X_CT_last.translation()).norm() +
                 rotation_distance(X_CT.linear(), X_CT_last.linear()) * tool.length;
-      // Every step while the tool presses on the body: the penalty is a stiff spring and must
-      // follow the tool's depth without delay.
-      if (moved >= motion_trigger || since_removal >= params.removal_max_interval - 1e-12 ||
-          penalty > 0) {
+      // Between removal steps the penalty follows the tool (below); removal comes more often
+      // while the tool presses into the body, where only a removal step sees the surface's shape.
+      const double trigger = contact.depth > 0 ? contact_trigger : motion_trigger;
+      if (moved >= trigger || since_removal >= params.removal_max_interval - 1e-12) {
         const Vec3 v_CT = X_CW.linear() * tcp_velocity_W();
         const StepRemoval step = remove_material(tool, *grid, X_CT);
         const GrindingWrench w = grinding_force(force, tool, step, since_removal, X_CT, v_CT);
         pen_F_C.setZero();
         pen_tau_C.setZero();
+        contact = PenaltyContact{};
         if (w.penalty_force > 0 && step.contact_count > 0) {
           // The penalty part as grinding_force builds it: along the normal at the contact centroid.
-          pen_F_C = w.penalty_force * towards_axis(tool, X_CT, step.contact_centroid_C);
-          pen_tau_C = (step.contact_centroid_C - X_CT.translation()).cross(pen_F_C);
+          const Vec3 n_C = towards_axis(tool, X_CT, step.contact_centroid_C);
+          contact = {step.penetration, n_C, inward_direction(grid->nominal(), step.deepest_C, -n_C),
+                     X_CT.translation(), step.contact_centroid_C - X_CT.translation()};
+          pen_F_C = w.penalty_force * contact.n_C;
+          pen_tau_C = contact.arm_C.cross(pen_F_C);
         }
         rate = {w.force_C - pen_F_C, w.torque_C - pen_tau_C, w.normal_force - w.penalty_force,
                 w.tangential_force};
@@ -471,6 +525,17 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
         X_CT_last = X_CT;
         have_removal_pose = true;
         since_removal = 0;
+      } else if (contact.depth > 0) {
+        // The stiff penalty spring follows the tool at every step: the deepest body point of the
+        // last removal step moves with the tool, its depth taken against the nominal surface's
+        // tangent plane there (exact again at the next removal step, at most
+        // removal_contact_motion voxels on).
+        double speed_in = 0;
+        if (force.contact_damping > 0)
+          speed_in = std::max(0.0, -(X_CW.linear() * tcp_velocity_W()).dot(contact.n_C));
+        penalty = penalty_force(force, contact.depth_at(X_CT.translation()), speed_in);
+        pen_F_C = penalty * contact.n_C;
+        pen_tau_C = contact.arm_C.cross(pen_F_C);
       }
     }
 
@@ -507,8 +572,8 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
         dff->qvel[c.dadr[i]] = r.dq[i];
         dff->qacc[c.dadr[i]] = r.ddq[i];
       }
-      mj_inverse(m, dff);
-      for (int i = 0; i < kNumJoints; ++i) tau_ff[i] = dff->qfrc_inverse[c.dadr[i]];
+      rigid_inverse_dynamics(mff, dff, tau_inv.data());
+      for (int i = 0; i < kNumJoints; ++i) tau_ff[i] = tau_inv[c.dadr[i]];
     }
     if (params.load_compensation && grind_wrench_W.squaredNorm() > 0) {
       // Deflection compensation: cancel the grinding wrench of the previous step through the
@@ -561,9 +626,9 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     {
       // The grinding part alone (rate wrench), about the tool's COM, for the compensation.
       const Vec3 f = speed * G_W;
-      const Vec3 t = R_WC * (speed * rate.torque) +
+      const Vec3 torque = R_WC * (speed * rate.torque) +
                      (X_WT.translation() - vec3_at(d->xipos + 3 * c.tool)).cross(f);
-      grind_wrench_W << f, t;
+      grind_wrench_W << f, torque;
     }
     normal_force = speed * rate.normal + penalty;
     tangential_force = speed * rate.tangential;
@@ -590,7 +655,7 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
 
     mj_step2(m, d);  // actuation, acceleration, force sensors of this state; integrate
 
-    if (n % static_cast<std::size_t>(params.log_decimation) == 0 || n + 1 == total_steps) {
+    if (log_step) {
       ExecutionLog& L = res.log;
       L.t.push_back(t_sim);
       L.q.push_back(q_now);
@@ -630,6 +695,7 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
   const auto wall1 = std::chrono::steady_clock::now();
 
   // Final state: remaining samples (trajectory end without settling) and the final error.
+  m->opt.disableflags &= ~mjDSBL_SENSOR;
   mj_forward(m, d);
   if (!stopped) {
     check_limits();

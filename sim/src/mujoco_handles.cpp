@@ -54,4 +54,13 @@ int require_id(const mjModel* m, mjtObj type, const std::string& name) {
   return id;
 }
 
+void rigid_inverse_dynamics(const mjModel* m, mjData* d, mjtNum* tau) {
+  mj_kinematics(m, d);
+  mj_comPos(m, d);
+  mj_comVel(m, d);  // cvel, cdof_dot (needs comPos)
+  mj_passive(m, d);
+  mj_rne(m, d, 1, tau);  // M_body·q̈ + bias; the armature is not a body inertia, added below
+  for (int i = 0; i < m->nv; ++i) tau[i] += m->dof_armature[i] * d->qacc[i] - d->qfrc_passive[i];
+}
+
 }  // namespace flashtwin::sim

@@ -848,9 +848,19 @@ StepRemoval remove_material(const ToolParams& tool, MaterialGrid& grid, const Po
           out.contact_count += static_cast<std::size_t>(std::popcount(contact));
           add_centres(g, b, z, contact, contact_sum);
           float deepest = 0;
-          for (std::uint64_t m = contact; m; m &= m - 1)
-            deepest = std::max(deepest, g.depth(b, z * 64 + std::countr_zero(m)));
-          out.penetration = std::max(out.penetration, static_cast<double>(deepest));
+          int deepest_idx = -1;
+          for (std::uint64_t m = contact; m; m &= m - 1) {
+            const int idx = z * 64 + std::countr_zero(m);
+            const float d = g.depth(b, idx);
+            if (d > deepest) {
+              deepest = d;
+              deepest_idx = idx;
+            }
+          }
+          if (deepest_idx >= 0 && deepest > out.penetration) {
+            out.penetration = deepest;
+            out.deepest_C = g.centre(b, deepest_idx);
+          }
           if (body_now) {
             b.body[z] &= ~body_now;
             nb += std::popcount(body_now);
@@ -891,18 +901,35 @@ std::vector<std::array<std::uint64_t, 8>> attached_flash(const MaterialGrid::Imp
   using Brick = MaterialGrid::Impl::Brick;
   std::vector<std::array<std::uint64_t, 8>> seen(g.bricks.size());
   auto bit_of = [](int x, int y) { return std::uint64_t{1} << (x + 8 * y); };
-  // Calls f(brick, x, y, z) for every neighbour voxel of global voxel (gx, gy, gz) in a brick.
-  auto for_neighbours = [&](std::int64_t gx, std::int64_t gy, std::int64_t gz, auto&& f) {
+  // The 27 bricks around each brick holding flash (itself at 13; -1: none), looked up once:
+  // the fill below only walks flash voxels, so only their bricks need neighbours.
+  std::vector<std::int32_t> row_of(g.bricks.size(), -1);
+  std::vector<std::array<std::int32_t, 27>> around;
+  for (std::uint32_t n = 0; n < g.bricks.size(); ++n) {
+    const Brick& b = g.bricks[n];
+    if (b.n_flash == 0) continue;
+    row_of[n] = static_cast<std::int32_t>(around.size());
+    std::array<std::int32_t, 27> a;
+    for (int k = 0; k < 27; ++k) {
+      const Brick* nb = g.find(b.bx + k % 3 - 1, b.by + (k / 3) % 3 - 1, b.bz + k / 9 - 1);
+      a[static_cast<std::size_t>(k)] = nb ? static_cast<std::int32_t>(nb - g.bricks.data()) : -1;
+    }
+    around.push_back(a);
+  }
+  // Calls f(brick index, x, y, z) for every neighbour voxel of local voxel (x, y, z) of brick n.
+  auto for_neighbours = [&](std::uint32_t n, int x, int y, int z, auto&& f) {
+    const auto& a = around[static_cast<std::size_t>(row_of[n])];
     for (int dz = -1; dz <= 1; ++dz)
       for (int dy = -1; dy <= 1; ++dy)
         for (int dx = -1; dx <= 1; ++dx) {
           if (!dx && !dy && !dz) continue;
-          const std::int64_t nx = gx + dx, ny = gy + dy, nz = gz + dz;
-          const auto fl = [](std::int64_t v) { return v >= 0 ? v / kBrick : (v - kBrick + 1) / kBrick; };
-          const Brick* nb = g.find(fl(nx), fl(ny), fl(nz));
-          if (!nb) continue;
-          f(*nb, static_cast<int>(nx - nb->bx * kBrick), static_cast<int>(ny - nb->by * kBrick),
-            static_cast<int>(nz - nb->bz * kBrick));
+          const int nx = x + dx, ny = y + dy, nz = z + dz;
+          // Which brick of the 3×3×3 block, and the voxel's local coordinates in it.
+          const int sx = nx < 0 ? 0 : (nx > 7 ? 2 : 1), sy = ny < 0 ? 0 : (ny > 7 ? 2 : 1),
+                    sz = nz < 0 ? 0 : (nz > 7 ? 2 : 1);
+          const std::int32_t k = a[static_cast<std::size_t>(sx + 3 * sy + 9 * sz)];
+          if (k < 0) continue;
+          f(static_cast<std::uint32_t>(k), nx & 7, ny & 7, nz & 7);
         }
   };
   std::vector<std::pair<std::uint32_t, int>> stack;
@@ -913,10 +940,9 @@ std::vector<std::array<std::uint64_t, 8>> attached_flash(const MaterialGrid::Imp
       for (std::uint64_t m = b.flash[z]; m; m &= m - 1) {
         const int bit = std::countr_zero(m);
         bool touches = false;
-        for_neighbours(b.bx * kBrick + (bit & 7), b.by * kBrick + (bit >> 3), b.bz * kBrick + z,
-                       [&](const Brick& nb, int x, int y, int zz) {
-                         touches = touches || (nb.body[zz] & bit_of(x, y));
-                       });
+        for_neighbours(n, bit & 7, bit >> 3, z, [&](std::uint32_t k, int x, int y, int zz) {
+          touches = touches || (g.bricks[k].body[zz] & bit_of(x, y));
+        });
         if (touches && !(seen[n][z] & (std::uint64_t{1} << bit))) {
           seen[n][z] |= std::uint64_t{1} << bit;
           stack.emplace_back(n, z * 64 + bit);
@@ -926,17 +952,14 @@ std::vector<std::array<std::uint64_t, 8>> attached_flash(const MaterialGrid::Imp
   while (!stack.empty()) {
     const auto [n, idx] = stack.back();
     stack.pop_back();
-    const Brick& b = g.bricks[n];
     const int bit = idx & 63, z = idx >> 6;
-    for_neighbours(b.bx * kBrick + (bit & 7), b.by * kBrick + (bit >> 3), b.bz * kBrick + z,
-                   [&](const Brick& nb, int x, int y, int zz) {
-                     const std::uint64_t mb = bit_of(x, y);
-                     const auto k = static_cast<std::uint32_t>(&nb - g.bricks.data());
-                     if ((nb.flash[zz] & mb) && !(seen[k][zz] & mb)) {
-                       seen[k][zz] |= mb;
-                       stack.emplace_back(k, zz * 64 + x + 8 * y);
-                     }
-                   });
+    for_neighbours(n, bit & 7, bit >> 3, z, [&](std::uint32_t k, int x, int y, int zz) {
+      const std::uint64_t mb = bit_of(x, y);
+      if ((g.bricks[k].flash[zz] & mb) && !(seen[k][zz] & mb)) {
+        seen[k][zz] |= mb;
+        stack.emplace_back(k, zz * 64 + x + 8 * y);
+      }
+    });
   }
   return seen;
 }
@@ -1093,6 +1116,11 @@ TriangleMesh remaining_flash_mesh(const MaterialGrid& grid) {
 // ---------------------------------------------------------------------------------------------
 // Force
 
+double penalty_force(const ForceParams& params, double penetration, double speed_in) {
+  if (!(penetration > 0)) return 0;
+  return params.contact_stiffness * penetration + params.contact_damping * speed_in;
+}
+
 double cutting_speed(const ForceParams& params, const ToolParams& tool) {
   return 2 * M_PI * tool.radius * params.spindle_rpm / 60.0;
 }
@@ -1143,9 +1171,7 @@ GrindingWrench grinding_force(const ForceParams& params, const ToolParams& tool,
   }
   if (step.penetration > 0 && step.contact_count > 0) {
     const Vec3 n = towards_axis(step.contact_centroid_C);
-    const double speed_in = std::max(0.0, -v_CT.dot(n));
-    out.penalty_force =
-        params.contact_stiffness * step.penetration + params.contact_damping * speed_in;
+    out.penalty_force = penalty_force(params, step.penetration, std::max(0.0, -v_CT.dot(n)));
     const Vec3 f = out.penalty_force * n;
     out.force_C += f;
     out.torque_C += (step.contact_centroid_C - p_tcp).cross(f);

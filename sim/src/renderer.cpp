@@ -152,7 +152,7 @@ void add_overlay(const PointOverlay& o, mjvScene& scn) {
     const float rgba[4] = {c.r / 255.0f, c.g / 255.0f, c.b / 255.0f, 1.0f};
     const mjtNum pos[3] = {p.x(), p.y(), p.z()};
     mjvGeom* g = &scn.geoms[scn.ngeom];
-    mjv_initGeom(g, mjGEOM_SPHERE, size, pos, nullptr, rgba);
+    mjv_initGeom(g, o.cubes ? mjGEOM_BOX : mjGEOM_SPHERE, size, pos, nullptr, rgba);
     // Decoration, not a model object: no selection, no segmentation label of its own.
     g->category = mjCAT_DECOR;
     g->objtype = mjOBJ_UNKNOWN;

@@ -116,7 +116,9 @@ TEST(Cli, BadInputExitsTwoWithOneLine) {
     const CliRun r = run(c.args);
     EXPECT_EQ(r.code, 2) << c.args << "\n" << r.err;
     EXPECT_NE(r.err.find(c.needle), std::string::npos) << c.args << "\n" << r.err;
-    if (!c.needle.empty()) EXPECT_EQ(lines(r.err), 1) << c.args << "\n" << r.err;
+    if (!c.needle.empty()) {
+      EXPECT_EQ(lines(r.err), 1) << c.args << "\n" << r.err;
+    }
   }
   EXPECT_FALSE(std::filesystem::exists(tmp + "/c/cell.xml"));
 }
@@ -158,6 +160,10 @@ TEST(Cli, ScanWritesIdenticalCloudsForTheSameSeed) {
   // The cloud reads back through PCL with the same point count.
   EXPECT_EQ(flashtwin::load_cloud(a + "/scan.pcd").size(), j["points"].get<std::size_t>());
   EXPECT_EQ(flashtwin::load_cloud(a + "/scan.ply").size(), j["points"].get<std::size_t>());
+  // --seed picks another casting and placement, as run and sweep do.
+  const std::string c = ftest::temp_dir("cli_scan_c");
+  ASSERT_EQ(run("scan " + scen + " --seed 77 --json -o " + c).code, 0);
+  EXPECT_TRUE(slurp(a + "/scan.ply") != slurp(c + "/scan.ply"));
 }
 
 TEST(Cli, RenderWritesPngsOfTheRequestedSize) {
@@ -309,7 +315,10 @@ TEST(Cli, RunIsDeterministicAndWritesTheClosedLoopOutputs) {
   EXPECT_NE(html.find("removal.flash_removed_fraction"), std::string::npos);
   EXPECT_TRUE(std::filesystem::exists(a + "/trajectory.csv"));
   EXPECT_TRUE(std::filesystem::exists(a + "/plan/path_0/flashtwin_path_0.src"));
+  EXPECT_TRUE(std::filesystem::exists(a + "/plan/path_0/joint_positions.png"));
   EXPECT_FALSE(std::filesystem::exists(b + "/report.html"));
+  EXPECT_FALSE(std::filesystem::exists(b + "/plan/path_0/joint_positions.png"));  // --no-report
+  EXPECT_TRUE(std::filesystem::exists(b + "/plan/path_0/trajectory.csv"));
 }
 
 TEST(Cli, RunRejectsBadScenariosWithExitTwo) {

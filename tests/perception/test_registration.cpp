@@ -147,3 +147,25 @@ TEST(Registration, BadInputFailsCleanly) {
   EXPECT_THROW(ModelTarget::from_cloud(few), ArgumentError);
   EXPECT_THROW(ModelTarget::from_mesh(TriangleMesh{}), ArgumentError);
 }
+
+// The process-wide target cache: the same mesh and parameters give the same target object, a
+// changed vertex or parameter a new one, and a cached target equals a freshly built one.
+TEST(Registration, TargetCacheReturnsTheSameTargetOnlyForTheSameMeshAndParams) {
+  const TriangleMesh box = box_mesh(Vec3(0, 0, 0), Vec3(0.2, 0.1, 0.05));
+  TargetParams p;
+  p.mesh_samples = 5000;
+  const auto a = ModelTarget::from_mesh_cached(box, p);
+  const auto b = ModelTarget::from_mesh_cached(box, p);
+  EXPECT_EQ(a.get(), b.get());
+  TriangleMesh moved = box;
+  moved.vertices[3].x() += 1e-6;
+  EXPECT_NE(ModelTarget::from_mesh_cached(moved, p).get(), a.get());
+  TargetParams q = p;
+  q.seed = 2;
+  EXPECT_NE(ModelTarget::from_mesh_cached(box, q).get(), a.get());
+  const auto fresh = ModelTarget::from_mesh(box, p);
+  ASSERT_EQ(fresh->dense().size(), a->dense().size());
+  for (std::size_t i = 0; i < fresh->dense().size(); ++i)
+    ASSERT_EQ(fresh->dense().points[i], a->dense().points[i]);
+  EXPECT_EQ(fresh->diagonal(), a->diagonal());
+}

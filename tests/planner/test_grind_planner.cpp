@@ -432,8 +432,9 @@ TEST(GrindPlanner, StockAllowanceKeepsTheBurrOffTheWall) {
   EXPECT_DOUBLE_EQ(r.pass_offsets[0], GrindParams{}.stock_allowance);
   EXPECT_DOUBLE_EQ(GrindParams{}.stock_allowance, 0.03e-3);
   for (const auto& s : r.samples)
-    if (s.kind == SampleKind::kCut)
+    if (s.kind == SampleKind::kCut) {
       EXPECT_NEAR(s.X_CT.translation().x(), -(robot.tool.radius + 0.03e-3), 1e-12);
+    }
 }
 
 TEST(GrindPlanner, HoleNarrowerThanTheBurrIsRefused) {

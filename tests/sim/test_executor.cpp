@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "flashtwin/core/errors.hpp"
+#include "flashtwin/core/random.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
 #include "flashtwin/planner/kinematics.hpp"
 #include "flashtwin/sim/cell.hpp"
@@ -450,4 +451,27 @@ TEST(Executor, CallbackSeesEveryStep) {
   EXPECT_EQ(calls, 60);
   EXPECT_EQ(r.steps, 60u);
   EXPECT_NEAR(last, 0.06, 1e-12);
+}
+
+// The executor's feed-forward: rigid_inverse_dynamics equals mj_inverse on the cell's arm with
+// contacts and constraints off, at random states (positions, velocities, accelerations).
+TEST(Executor, RigidInverseDynamicsMatchesMjInverse) {
+  const DefaultCell& cell = default_cell();
+  MjModelPtr m(mj_copyModel(nullptr, cell.model.get()));
+  m->opt.disableflags |= mjDSBL_CONSTRAINT | mjDSBL_CONTACT;
+  const MjDataPtr a = make_data(m.get()), b = make_data(m.get());
+  std::vector<mjtNum> tau(m->nv);
+  Rng rng(11);
+  for (int trial = 0; trial < 50; ++trial) {
+    for (int i = 0; i < m->nq; ++i) a->qpos[i] = b->qpos[i] = rng.uniform(-2, 2);
+    for (int i = 0; i < m->nv; ++i) {
+      a->qvel[i] = b->qvel[i] = rng.uniform(-2, 2);
+      a->qacc[i] = b->qacc[i] = rng.uniform(-10, 10);
+    }
+    mj_inverse(m.get(), a.get());
+    rigid_inverse_dynamics(m.get(), b.get(), tau.data());
+    for (int i = 0; i < m->nv; ++i)
+      EXPECT_NEAR(tau[i], a->qfrc_inverse[i], 1e-9 * (1 + std::abs(a->qfrc_inverse[i])))
+          << "trial " << trial << " dof " << i;
+  }
 }

@@ -8,12 +8,13 @@ namespace flashtwin::perception {
 
 enum class Baseline {
   kSacIaNdt,    ///< FPFH features + SAC-IA, refined by NDT
+  kSacIaNdtIcp, ///< FPFH features + SAC-IA, refined by NDT, then ICP
   kNdtIcp,      ///< NDT from identity, refined by ICP
   kIss3dscIcp,  ///< ISS keypoints + 3D shape context + correspondence RANSAC, refined by ICP
   kFpcsIcp,     ///< PCL's FPCSInitialAlignment (4PCS), refined by ICP
 };
 
-/// "sacia-ndt", "ndt-icp", "iss-3dsc-icp", "fpcs-icp". @throws ArgumentError.
+/// "sacia-ndt", "sacia-ndt-icp", "ndt-icp", "iss-3dsc-icp", "fpcs-icp". @throws ArgumentError.
 Baseline baseline_from_string(const std::string& s);
 std::string to_string(Baseline b);
 

@@ -40,6 +40,11 @@ class ModelTarget {
   /// @throws ArgumentError for an empty or degenerate mesh.
   static std::shared_ptr<const ModelTarget> from_mesh(const TriangleMesh& mesh,
                                                       const TargetParams& params = {});
+  /// from_mesh through a small process-wide cache (the last 4 meshes, compared in full): runs
+  /// of a sweep over one part (a user's mesh) build its target once. Thread-safe; the same
+  /// result as from_mesh.
+  static std::shared_ptr<const ModelTarget> from_mesh_cached(const TriangleMesh& mesh,
+                                                             const TargetParams& params = {});
   /// From a point cloud (normals estimated when missing).
   /// @throws ArgumentError for fewer than 10 points or NaN/inf coordinates.
   static std::shared_ptr<const ModelTarget> from_cloud(const PointCloud& cloud,
@@ -88,6 +93,12 @@ struct RegistrationParams {
   /// Source viewpoint for normal orientation ({S} frame of the source points); NaN = unknown
   /// (normals then point away from the centroid and are made consistent over neighbours).
   Vec3 viewpoint = Vec3::Constant(std::numeric_limits<double>::quiet_NaN());
+  /// After the polish, a translation direction whose constraint eigenvalue is below this share
+  /// of the strongest is searched (offsets up to diag/15, a quarter fine voxel apart) for the pose
+  /// that explains the most points.
+  double weak_direction_ratio = 0.1;
+  /// ... and the best offset is taken when it explains this share more points than the polish.
+  double weak_direction_gain = 0.01;
 };
 
 /// The project's registration: preprocessing, PCA alignment (4 proper rotations), 4PCS, ICP

@@ -13,6 +13,7 @@
 #include "flashtwin/pipeline/video.hpp"
 #include "flashtwin/perception/registration.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
+#include "flashtwin/planner/grind_planner.hpp"
 #include "flashtwin/sim/cell.hpp"
 #include "flashtwin/sim/scan_cell.hpp"
 
@@ -60,6 +61,10 @@ void save_scan(const ScenarioScan& s, const std::string& dir, bool pcd);
 /// Runs the scenario end to end and writes metrics.json (and the other outputs) into
 /// options.out_dir. @throws InputError for bad scenario contents (missing meshes, ...).
 RunResult run_scenario(const Scenario& scenario, const RunOptions& options);
+
+/// The planner's input for a detected path (root points and wall normals in {C}, fin normal,
+/// closed or not).
+planner::GrindPath grind_path_of(const perception::FlashPath& path);
 
 /// Writes detected paths as JSON ({C}: points, normals, closed, region) and PLY (vertices +
 /// edges) next to each other: DIR/paths.json, DIR/paths.ply.

@@ -217,10 +217,12 @@ enum class JointQuantity { kPosition, kVelocity, kAcceleration };
 Image plot_joint_trajectory(const JointTrajectory& trajectory, JointQuantity quantity,
                             int width = 900, int height = 500);
 
-/// Writes DIR/trajectory.csv, DIR/grind_summary.json and (when ok) DIR/joint_positions.png,
-/// DIR/joint_velocities.png, DIR/joint_accelerations.png. Creates DIR.
+/// Writes DIR/trajectory.csv, DIR/grind_summary.json and, when `plots` and the plan is ok,
+/// DIR/joint_positions.png, DIR/joint_velocities.png, DIR/joint_accelerations.png. Creates DIR.
+/// `csv`: trajectory_csv(result) when the caller has it already ("" = format it here).
 /// @throws IoError when a file cannot be written.
-void write_grind_outputs(const GrindResult& result, const std::string& dir);
+void write_grind_outputs(const GrindResult& result, const std::string& dir, bool plots = true,
+                         const std::string& csv = "");
 
 std::string to_string(GrindStatus status);
 std::string to_string(SampleKind kind);

@@ -26,6 +26,12 @@ MjModelPtr load_mjcf_string(const std::string& xml, const std::string& name = "m
 /// Fresh mjData for a model.
 MjDataPtr make_data(const mjModel* m);
 
+/// Rigid-body inverse dynamics τ = M(q)·q̈ + c(q, q̇) − passive(q, q̇) (armature included) for
+/// d's qpos, qvel and qacc: what mj_inverse gives with contacts and constraints disabled, without
+/// its camera, tendon, mass-matrix and sensor passes (a third of its time on the arm). Writes
+/// d's kinematics, velocities and qfrc_passive; tau has m->nv entries.
+void rigid_inverse_dynamics(const mjModel* m, mjData* d, mjtNum* tau);
+
 /// Id of a named object or throws InputError naming what was expected.
 int require_id(const mjModel* m, mjtObj type, const std::string& name);
 

@@ -141,6 +141,9 @@ struct StepRemoval {
   /// Current penetration of the tool into the nominal body [m]: deepest BODY voxel centre (removed
   /// now or earlier) inside the tool; drives the contact penalty force. Saturates near body_band.
   double penetration = 0;
+  /// [m] centre of the deepest BODY voxel inside the tool (the one giving `penetration`; valid
+  /// when penetration > 0)
+  Vec3 deepest_C = Vec3::Zero();
   Vec3 contact_centroid_C = Vec3::Zero();  ///< [m] centroid of BODY voxels inside the tool
   std::size_t contact_count = 0;           ///< BODY voxels (removed or not) inside the tool
 
@@ -242,6 +245,9 @@ struct GrindingWrench {
 GrindingWrench grinding_force(const ForceParams& params, const ToolParams& tool,
                               const StepRemoval& step, double dt, const Pose& X_CT,
                               const Vec3& v_CT);
+
+/// Contact penalty k·penetration + c·(speed into the body) [N] (0 when not penetrating).
+double penalty_force(const ForceParams& params, double penetration, double speed_in);
 
 /// Burr surface speed v_s = 2π · radius · rpm / 60 [m/s].
 double cutting_speed(const ForceParams& params, const ToolParams& tool);

@@ -18,7 +18,10 @@ namespace flashtwin::sim {
 struct PointOverlay {
   std::vector<Vec3> points_W;  ///< non-finite points are skipped
   std::vector<Rgb> colors;     ///< one per point, or one for all, or empty (= orange)
-  double radius = 0.0008;      ///< [m], > 0
+  double radius = 0.0008;      ///< [m], > 0 (a cube's half edge)
+  /// Spheres, or cubes: 12 triangles instead of MuJoCo's ~900 per sphere, for many points in a
+  /// software-rendered video (the remaining flash drawn as its voxels).
+  bool cubes = false;
   int max_points = 20000;      ///< >= 0; evenly subsampled beyond this (and beyond the
                                ///< scene's free geom slots: MuJoCo scene geom budget)
 };

@@ -17,6 +17,7 @@ struct RenderRequest {
   std::vector<Rgb> colors;                 ///< one per point, one for all, or empty
   double point_radius = 0.0008;            ///< [m]
   int max_points = 8000;                   ///< overlay budget (each sphere costs ~0.2 ms)
+  bool cubes = false;                      ///< draw the points as cubes (cheaper; PointOverlay)
 };
 
 /// Renders the MJCF file from each requested camera into out_dir/<prefix><camera>.png and
