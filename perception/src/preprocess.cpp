@@ -249,6 +249,12 @@ std::vector<int> feature_points(const std::vector<float>& gamma, double fraction
   return order;
 }
 
+namespace {
+/// Share of the off-plane points a support plane may have on its far side (noise, outliers,
+/// mixed points, a few rays under a table edge).
+constexpr double kSupportOtherSide = 0.05;
+}  // namespace
+
 PointCloud remove_support_plane(const PointCloud& cloud, double distance, double cluster_tolerance,
                                 double min_share, std::uint64_t seed) {
   const std::size_t n = cloud.size();
@@ -267,9 +273,17 @@ PointCloud remove_support_plane(const PointCloud& cloud, double distance, double
     if (nrm.norm() < 1e-12) continue;
     nrm.normalize();
     const double d = -nrm.dot(a);
-    std::size_t count = 0;
-    for (std::size_t i = 0; i < n; i += step)
-      count += std::abs(nrm.dot(cloud.points[i].cast<double>()) + d) < distance;
+    std::size_t count = 0, pos = 0, neg = 0;
+    for (std::size_t i = 0; i < n; i += step) {
+      const double sd = nrm.dot(cloud.points[i].cast<double>()) + d;
+      if (std::abs(sd) < distance) ++count;
+      else if (sd > 0) ++pos;
+      else ++neg;
+    }
+    // The part stands on its support: (nearly) everything off the plane lies on one side. A
+    // big face of the part itself (a plate's top, seen from many views) has the rest of the
+    // part and the table on its other side.
+    if (std::min(pos, neg) > kSupportOtherSide * static_cast<double>(pos + neg)) continue;
     if (count > best_count) {
       best_count = count;
       best_n = nrm;

@@ -156,7 +156,7 @@ void rescan_after(const Scenario& sc, const ScenarioScan& ss, const Pose& X_CM_e
     fin.volume = summary.residual.flash_volume_remaining;
     after.fins.push_back(std::move(fin));
   }
-  sim::ScanParams params = sc.scan;
+  sim::ScanParams params = ss.params;  // the same views as the first scan
   params.seed = sc.seed + 1000003;  // a new scan, not a replay of the first one's noise
   params.threads = std::max(1, params.threads);
   const sim::CellScan scan = sim::scan_cell(ss.files.mjcf, after, params, ss.scan.X_WM_nominal,

@@ -159,11 +159,19 @@ ScenarioScan scan_scenario(const Scenario& sc, const std::string& cell_dir, int 
   ScenarioScan s;
   s.setup = setup_cell(sc);
   s.files = sim::write_cell(sc.robot, s.setup.spec, s.setup.casting, cell_dir);
-  sim::ScanParams params = sc.scan;
-  params.threads = std::max(1, threads);
+  s.params = sc.scan;
+  s.params.threads = std::max(1, threads);
+  // Scan planning from the CAD at the nominal placement (the fixture's; a randomly placed part
+  // has none, and keeps the scenario's views). Nothing of the flashes is known here.
+  if (sc.auto_views && !sc.placement.random) {
+    s.plan = sim::plan_scan_views(s.files.mjcf, s.setup.casting.nominal, s.setup.spec.X_WC, s.setup.spec.X_WM,
+                                  sc.scan.noise, sc.view_plan, s.params.threads);
+    s.params.views = s.plan.views;
+    s.planned = true;
+  }
   const Pose X_WM_true = sim::perturb_pose(s.setup.spec.X_WM, sc.calibration_translation,
                                            sc.calibration_rotation, sc.seed);
-  s.scan = sim::scan_cell(s.files.mjcf, s.setup.casting, params, s.setup.spec.X_WM, X_WM_true);
+  s.scan = sim::scan_cell(s.files.mjcf, s.setup.casting, s.params, s.setup.spec.X_WM, X_WM_true);
   return s;
 }
 
@@ -207,6 +215,21 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   const PointCloud& cloud_M = scan.result.cloud_M;
   m["scan.points"] = cloud_M.size();
   m["scan.rays_per_s"] = scan.result.rays_per_s();
+  m["scan.views"] = ss.params.views.size();
+  if (ss.planned) {
+    m["scan.plan_unseen_fraction"] = ss.plan.unseen_fraction;
+    m["scan.plan_unseen_by_any"] = ss.plan.unseen_by_any;
+  }
+  {
+    // Scoring (truth): how much of the true flash roots no view saw.
+    const Pose X_CM_true = setup.spec.X_WC.inverse() * scan.X_WM_true;
+    std::vector<Vec3> flash_C;
+    for (std::size_t i = 0; i < cloud_M.size(); ++i)
+      if (scan.result.truth[i] == sim::kTruthFlash) flash_C.push_back(X_CM_true * cloud_M.points[i].cast<double>());
+    std::vector<Curve> roots;
+    for (const auto& f : setup.casting.fins) roots.push_back({f.root, f.closed});
+    m["scan.unseen_parting_fraction"] = unseen_root_fraction(roots, flash_C);
+  }
   if (write && opt.write_scan) save_scan(ss, dir.string(), false);
 
   // --- Perception: pose, then flashes. Inputs: the scan in {M}, the CAD model, X_WM as

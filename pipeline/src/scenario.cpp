@@ -92,9 +92,25 @@ void read_scanner(const ConfigNode& s, Scenario& sc) {
     sc.calibration_translation = c.get_double("translation", 0.0, 0.1, 0.0);
     sc.calibration_rotation = c.get_double("rotation", 0.0, 0.2, 0.0);
   }
-  if (s.has("views")) {
+  if (s.has("auto_views")) {
+    const ConfigNode a = s.at("auto_views");
+    auto& vp = sc.view_plan;
+    vp.max_views = static_cast<int>(a.get_int("max_views", 1, 32, vp.max_views));
+    vp.min_gain = a.get_double("min_gain", 0.0, 1.0, vp.min_gain);
+    vp.cell = a.get_double("cell", 1e-4, 0.05, vp.cell);
+    vp.azimuths = static_cast<int>(a.get_int("azimuths", 1, 72, vp.azimuths));
+    vp.standoff = a.get_double("standoff", 0.05, 2.0, vp.standoff);
+  }
+  if (s.has("views") && s.at("views").is_scalar()) {
     const ConfigNode vs = s.at("views");
-    if (!vs.is_sequence() || vs.size() == 0) vs.fail("expected a non-empty list of views");
+    const std::string mode = vs.as_string();
+    if (mode == "auto") sc.auto_views = true;
+    else if (mode == "default") sc.auto_views = false;  // the five fixed sweeps
+    else vs.fail("expected auto, default or a list of views, got '" + mode + "'");
+  } else if (s.has("views")) {
+    const ConfigNode vs = s.at("views");
+    if (!vs.is_sequence() || vs.size() == 0) vs.fail("expected auto, default or a non-empty list of views");
+    sc.auto_views = false;
     sp.views.clear();
     for (std::size_t i = 0; i < vs.size(); ++i) {
       const ConfigNode v = vs[i];

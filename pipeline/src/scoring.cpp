@@ -78,6 +78,29 @@ double CurveDistance::operator()(const Vec3& p) const {
   return best;
 }
 
+namespace {
+/// Evaluation points every `spacing` along each curve (segment ends included); adds the
+/// curves' length to `length`.
+std::vector<Vec3> sample_curves(const std::vector<Curve>& curves, double spacing, double& length) {
+  std::vector<Vec3> out;
+  for (const auto& c : curves) {
+    const std::size_t n = c.points.size();
+    const std::size_t segs = c.closed && n > 2 ? n : (n ? n - 1 : 0);
+    if (n == 1) out.push_back(c.points[0]);
+    for (std::size_t i = 0; i < segs; ++i) {
+      const Vec3& a = c.points[i];
+      const Vec3& b = c.points[(i + 1) % n];
+      const double L = (b - a).norm();
+      length += L;
+      const int k = std::max(1, static_cast<int>(std::ceil(L / spacing)));
+      for (int j = 0; j < k; ++j) out.push_back(a + (b - a) * (static_cast<double>(j) / k));
+      if (!c.closed && i + 1 == segs) out.push_back(b);
+    }
+  }
+  return out;
+}
+}  // namespace
+
 PathScore score_path(const std::vector<Curve>& extracted, const std::vector<Curve>& truth,
                      double spacing, double cover_tolerance) {
   FT_ASSERT(spacing > 0 && cover_tolerance > 0);
@@ -86,20 +109,7 @@ PathScore score_path(const std::vector<Curve>& extracted, const std::vector<Curv
   const CurveDistance to_truth(truth);
   // Evaluation points every `spacing` along each true root (segment ends included).
   std::vector<double> d;
-  for (const auto& c : truth) {
-    const std::size_t n = c.points.size();
-    const std::size_t segs = c.closed && n > 2 ? n : (n ? n - 1 : 0);
-    if (n == 1) d.push_back(to_path(c.points[0]));
-    for (std::size_t i = 0; i < segs; ++i) {
-      const Vec3& a = c.points[i];
-      const Vec3& b = c.points[(i + 1) % n];
-      const double L = (b - a).norm();
-      s.true_length += L;
-      const int k = std::max(1, static_cast<int>(std::ceil(L / spacing)));
-      for (int j = 0; j < k; ++j) d.push_back(to_path(a + (b - a) * (static_cast<double>(j) / k)));
-      if (!c.closed && i + 1 == segs) d.push_back(to_path(b));
-    }
-  }
+  for (const auto& q : sample_curves(truth, spacing, s.true_length)) d.push_back(to_path(q));
   for (const auto& c : extracted) {
     const std::size_t n = c.points.size();
     for (std::size_t i = 0; i < n; ++i) {
@@ -130,6 +140,44 @@ PathScore score_path(const std::vector<Curve>& extracted, const std::vector<Curv
   s.rmse = std::sqrt(sum2 / d.size());
   s.coverage = static_cast<double>(covered) / d.size();
   return s;
+}
+
+double unseen_root_fraction(const std::vector<Curve>& roots, const std::vector<Vec3>& seen_C,
+                            double radius, double spacing) {
+  FT_ASSERT(radius > 0 && spacing > 0);
+  double length = 0;
+  const std::vector<Vec3> samples = sample_curves(roots, spacing, length);
+  if (samples.empty()) return 0;
+  // Seen points in a grid of `radius` cells: a point within `radius` of a sample lies in one of
+  // the 27 cells around it.
+  const auto cell_of = [radius](const Vec3& p) {
+    return Eigen::Vector3i(static_cast<int>(std::floor(p.x() / radius)), static_cast<int>(std::floor(p.y() / radius)),
+                           static_cast<int>(std::floor(p.z() / radius)));
+  };
+  const auto key = [](const Eigen::Vector3i& c) {
+    const auto u = [](int v) { return static_cast<std::uint64_t>(v + (1 << 20)) & 0x1FFFFF; };
+    return (u(c.x()) << 42) | (u(c.y()) << 21) | u(c.z());
+  };
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> grid;
+  grid.reserve(seen_C.size());
+  for (std::size_t i = 0; i < seen_C.size(); ++i)
+    grid.emplace_back(key(cell_of(seen_C[i])), static_cast<std::uint32_t>(i));
+  std::sort(grid.begin(), grid.end());
+  std::size_t unseen = 0;
+  for (const auto& q : samples) {
+    const Eigen::Vector3i c = cell_of(q);
+    bool seen = false;
+    for (int dx = -1; dx <= 1 && !seen; ++dx)
+      for (int dy = -1; dy <= 1 && !seen; ++dy)
+        for (int dz = -1; dz <= 1 && !seen; ++dz) {
+          const auto k = key(c + Eigen::Vector3i(dx, dy, dz));
+          for (auto it = std::lower_bound(grid.begin(), grid.end(), std::make_pair(k, 0u));
+               it != grid.end() && it->first == k && !seen; ++it)
+            seen = (seen_C[it->second] - q).squaredNorm() <= radius * radius;
+        }
+    unseen += !seen;
+  }
+  return static_cast<double>(unseen) / static_cast<double>(samples.size());
 }
 
 }  // namespace flashtwin::pipeline

@@ -720,3 +720,87 @@ ScanResult scan(const ScanScene& scene, const Pose& X_WM_true, const ScanParams&
 }
 
 }  // namespace flashtwin::sim
+
+namespace flashtwin::sim {
+
+namespace {
+
+/// True when nothing in the scene lies on the open segment from `from` to `to` (both in {W}),
+/// apart from the last `eps` before `to` (the surface the point lies on).
+bool segment_clear(RTCScene scene, const Vec3& from, const Vec3& to, double eps) {
+  const Vec3 d = to - from;
+  const double len = d.norm();
+  if (!(len > eps)) return true;
+  RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  RTCRay ray;
+  ray.org_x = static_cast<float>(from.x());
+  ray.org_y = static_cast<float>(from.y());
+  ray.org_z = static_cast<float>(from.z());
+  const Vec3 u = d / len;
+  ray.dir_x = static_cast<float>(u.x());
+  ray.dir_y = static_cast<float>(u.y());
+  ray.dir_z = static_cast<float>(u.z());
+  ray.tnear = 0.0f;
+  ray.tfar = static_cast<float>(len - eps);
+  ray.time = 0.0f;
+  ray.mask = ~0u;
+  ray.id = 0;
+  ray.flags = 0;
+  rtcOccluded1(scene, &ctx, &ray);
+  return ray.tfar >= 0.0f;  // an occluded ray comes back with tfar = -inf
+}
+
+}  // namespace
+
+std::vector<char> view_sees(const ScanScene& scene, const Pose& X_WM, const ScanView& view,
+                            const std::vector<Vec3>& points_W, const std::vector<Vec3>& normals_W,
+                            double max_incidence) {
+  FT_ASSERT(normals_W.size() == points_W.size());
+  std::vector<char> seen(points_W.size(), 0);
+  const RTCScene s = scene.impl().scene.get();
+  const Pose X_WS = X_WM * view.X_MS;
+  const Pose X_SW = X_WS.inverse();
+  const Vec3 x_W = X_WS.linear().col(0);
+  const double cos_max = std::cos(max_incidence);
+  constexpr double eps = 2e-4;  // [m] the last bit before the point: its own surface
+  for (std::size_t i = 0; i < points_W.size(); ++i) {
+    const Vec3 q_S = X_SW * points_W[i];
+    Vec3 laser_W, cam_W;
+    double range = 0;
+    if (view.kind == SensorKind::kLineProfiler) {
+      // The profile whose laser plane (x = const in {S}) holds the point, if the sweep has it.
+      const LineProfilerParams& l = view.line;
+      const double x = q_S.x();
+      const double last = static_cast<double>(num_profiles(l) - 1) * l.profile_spacing;
+      if (x < 0 || x > last || q_S.z() <= 0) continue;
+      if (std::abs(std::atan2(q_S.y(), q_S.z())) > 0.5 * l.fov) continue;
+      range = std::hypot(q_S.y(), q_S.z());
+      if (range < l.range_min || range > l.range_max) continue;
+      laser_W = X_WS * Vec3(x, 0, 0);
+      cam_W = laser_W - l.baseline * x_W;
+    } else {
+      const AreaSensorParams& a = view.area;
+      if (q_S.z() <= 0 || std::abs(q_S.x() / q_S.z()) > std::tan(0.5 * a.fov_x) ||
+          std::abs(q_S.y() / q_S.z()) > std::tan(0.5 * a.fov_y))
+        continue;
+      range = q_S.norm();
+      if (range < a.range_min || range > a.range_max) continue;
+      laser_W = X_WS.translation();
+      cam_W = laser_W + a.baseline * x_W;
+    }
+    const Vec3& n = normals_W[i];
+    if (n.squaredNorm() > 0) {
+      // Laser incidence (either side reflects) and the camera on the lit side.
+      const Vec3 to_laser = (laser_W - points_W[i]).normalized();
+      const double c = n.dot(to_laser);
+      if (std::abs(c) < cos_max) continue;
+      const Vec3 lit = c > 0 ? n : Vec3(-n);
+      if (lit.dot(cam_W - points_W[i]) <= 0) continue;
+    }
+    seen[i] = segment_clear(s, laser_W, points_W[i], eps) && segment_clear(s, cam_W, points_W[i], eps);
+  }
+  return seen;
+}
+
+}  // namespace flashtwin::sim

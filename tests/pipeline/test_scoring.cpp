@@ -40,6 +40,16 @@ TEST(Scoring, PathOffsetAndHalfCoverage) {
   EXPECT_DOUBLE_EQ(z.coverage, 1.0);
 }
 
+TEST(Scoring, UnseenRootFractionCountsRootWithNoSeenPointNearby) {
+  // Root 100 mm along x; seen points 0.2 mm above its first 30 mm and 3 mm above the rest.
+  const std::vector<Curve> roots{{{Vec3(0, 0, 0), Vec3(0.1, 0, 0)}, false}};
+  std::vector<Vec3> seen;
+  for (int i = 0; i <= 100; ++i) seen.push_back(Vec3(i * 1e-3, 0, i <= 30 ? 2e-4 : 3e-3));
+  EXPECT_NEAR(unseen_root_fraction(roots, seen, 5e-4, 1e-3), 70.0 / 101.0, 1e-9);
+  EXPECT_DOUBLE_EQ(unseen_root_fraction(roots, {}, 5e-4, 1e-3), 1.0);
+  EXPECT_DOUBLE_EQ(unseen_root_fraction({}, seen), 0.0);
+}
+
 TEST(Scoring, CurveDistanceFindsFarSegments) {
   // A query far from every grid cell of the segment still gets the exact distance.
   const CurveDistance d({{{Vec3(0, 0, 0), Vec3(0.001, 0, 0)}, false}});

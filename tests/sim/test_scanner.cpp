@@ -1,5 +1,7 @@
 #include <gtest/gtest.h>
 
+#include <algorithm>
+
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -749,4 +751,54 @@ TEST(Scanner, DefaultKernelPathIsPinnedAndOverridable) {
     setenv("FLASHTWIN_EMBREE_CONFIG", saved_value.c_str(), 1);
   else
     unsetenv("FLASHTWIN_EMBREE_CONFIG");
+}
+
+// ---------------------------------------------------------------------------------------------
+// view_sees (scan planning): the scanner's rules for one point at a time
+// ---------------------------------------------------------------------------------------------
+
+TEST(ViewSees, AgreesWithTheScanOnEveryMeasuredPoint) {
+  // Every point a noise-free scan measured is judged seen (line profiler and area sensor; the
+  // last bits of the hit point aside, so 99 %).
+  const ScanScene scene = busy_scene();
+  ScanParams p = busy_params(3, 1);
+  p.noise = quiet();
+  p.noise.max_incidence = 1.2;
+  for (std::size_t v = 0; v < p.views.size(); ++v) {
+    ScanParams one = p;
+    one.views = {p.views[v]};
+    const ScanResult r = scan(scene, Pose::Identity(), one);
+    ASSERT_GT(r.cloud_M.size(), 1000u);
+    std::vector<Vec3> pts, nrm;
+    for (std::size_t i = 0; i < r.cloud_M.size(); ++i) {
+      pts.push_back(r.cloud_M.points[i].cast<double>());
+      nrm.push_back(r.cloud_M.normals[i].cast<double>());
+    }
+    const auto seen = view_sees(scene, Pose::Identity(), p.views[v], pts, nrm, p.noise.max_incidence);
+    const auto n_seen = static_cast<double>(std::count(seen.begin(), seen.end(), 1));
+    EXPECT_GE(n_seen / static_cast<double>(pts.size()), 0.99) << "view " << v;
+  }
+}
+
+TEST(ViewSees, RefusesWhatTheScannerCannotMeasure) {
+  const ScanScene scene({{rect(at(Vec3(0, 0, 0.4)), 0.5, 0.5), kTruthBackground, "plane"},
+                         {box(Vec3(0.01, 0, 0.25), Vec3(0.05, 0.02, 0.01)), kTruthBody, "box"}});
+  const ScanView v = line_view(101, 0.4, 0.1);  // profiles at x in [0, 0.1]
+  const Vec3 up(0, 0, -1);                     // faces the sensor
+  const std::vector<Vec3> pts{
+      Vec3(0.08, 0.05, 0.4),   // open plane: seen
+      Vec3(0.01, 0.0, 0.4),    // behind the box (laser blocked)
+      Vec3(0.2, 0.0, 0.4),     // beyond the sweep
+      Vec3(0.05, 0.3, 0.4),    // outside the fan (atan(0.3/0.4) > 0.2 rad)
+      Vec3(0.08, 0.05, 0.4),   // the first again, with a normal too grazing for the laser
+      Vec3(0.05, 0.06, 0.4),   // camera ray (from x - 0.12) clear: seen
+  };
+  const std::vector<Vec3> nrm{up, up, up, up, Vec3(1, 0, 0.05).normalized(), Vec3::Zero()};
+  const auto seen = view_sees(scene, Pose::Identity(), v, pts, nrm, 1.3);
+  EXPECT_EQ(seen, (std::vector<char>{1, 0, 0, 0, 0, 1}));
+  // A blocker on the camera's line of sight only hides the point from the camera.
+  const ScanScene cam_blocked({{rect(at(Vec3(0, 0, 0.4)), 0.5, 0.5), kTruthBackground, "plane"},
+                               {box(Vec3(0.0, 0.025, 0.2), Vec3(0.015, 0.01, 0.015)), kTruthBody, "blocker"}});
+  const auto seen2 = view_sees(cam_blocked, Pose::Identity(), v, {Vec3(0.06, 0.05, 0.4)}, {up}, 1.3);
+  EXPECT_EQ(seen2, std::vector<char>{0});
 }

@@ -38,7 +38,9 @@ std::vector<float> normal_variation(const PointCloud& cloud, int k);
 /// Indices of the `fraction` of points with the largest γ (at least 4 when possible).
 std::vector<int> feature_points(const std::vector<float>& gamma, double fraction);
 
-/// Finds the dominant plane (RANSAC); when it holds at least `min_share` of the points, removes
+/// Finds the dominant support plane (RANSAC over planes with at most 5 % of the off-plane points
+/// on one side: a part stands on its support, while a big face of the part has the rest of the
+/// part on its other side); when it holds at least `min_share` of the points, removes
 /// it (points within `distance` [m]) and everything on its far side, then keeps the largest
 /// Euclidean cluster (points linked within `cluster_tolerance` [m]). Returns the cloud
 /// unchanged when there is no dominant plane.

@@ -47,6 +47,9 @@ struct ScenarioScan {
   CellSetup setup;
   sim::CellFiles files;
   sim::CellScan scan;  ///< X_WM_nominal is the calibrated mount, X_WM_true the perturbed one
+  sim::ScanParams params;  ///< what was scanned: the scenario's, with the planned views
+  bool planned = false;    ///< the views were planned (`views: auto` at a known placement)
+  sim::ViewPlan plan;      ///< when planned
 };
 
 /// Builds the scenario's cell in `cell_dir` and scans it with `threads` scanner threads (the

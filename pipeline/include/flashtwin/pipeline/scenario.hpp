@@ -12,6 +12,7 @@
 #include "flashtwin/sim/cell.hpp"
 #include "flashtwin/sim/executor.hpp"
 #include "flashtwin/sim/process.hpp"
+#include "flashtwin/sim/scan_cell.hpp"
 #include "flashtwin/sim/scanner.hpp"
 
 namespace flashtwin::pipeline {
@@ -70,6 +71,10 @@ struct Scenario {
   sim::CastingParams casting;
   Placement placement;
   sim::ScanParams scan;                ///< views, noise, seed, threads
+  /// `views: auto` (the default): the views are planned from the CAD at the nominal placement
+  /// (scan.views then only stands in where the placement is random: nothing to plan from).
+  bool auto_views = true;
+  sim::ViewPlanParams view_plan;       ///< `scanner.auto_views:` overrides
   double calibration_translation = 0;  ///< [m] true X_WM differs from the nominal one by this
   double calibration_rotation = 0;     ///< [rad]
   perception::DetectionParams detection;  ///< `perception.detection:` overrides

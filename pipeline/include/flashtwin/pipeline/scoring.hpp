@@ -38,6 +38,12 @@ struct PathScore {
 PathScore score_path(const std::vector<Curve>& extracted, const std::vector<Curve>& truth,
                      double spacing = 1e-4, double cover_tolerance = 5e-4);
 
+/// Share of the true roots (sampled every `spacing`) with no seen point within `radius`:
+/// what no scanner view saw (`scan.unseen_parting_fraction`). `seen_C` holds the scan points
+/// that truly lie on a flash, at their true place in {C}. 0 when there is no root.
+double unseen_root_fraction(const std::vector<Curve>& roots, const std::vector<Vec3>& seen_C,
+                            double radius = 1.5e-3, double spacing = 1e-3);
+
 /// Distance from p to the nearest segment of a set of polylines (helper of score_path, kept
 /// public for tests). Returns +inf when there is no segment or point.
 class CurveDistance {

@@ -145,4 +145,13 @@ class ScanScene {
 /// got 0"), or when X_WM_true or a view's X_MS is not rigid.
 ScanResult scan(const ScanScene& scene, const Pose& X_WM_true, const ScanParams& params);
 
+/// Which of `points_W` the view would measure, by the scanner's own rules (sweep and fan or
+/// field of view, measuring range, laser incidence at most `max_incidence` and the camera on
+/// the lit side where a normal is given, nothing in the scene on the way from the laser and
+/// to the camera). A zero normal skips the incidence tests (a probe point in free space). For
+/// scan planning: one exact answer per point, no noise, no sampling.
+std::vector<char> view_sees(const ScanScene& scene, const Pose& X_WM, const ScanView& view,
+                            const std::vector<Vec3>& points_W, const std::vector<Vec3>& normals_W,
+                            double max_incidence);
+
 }  // namespace flashtwin::sim
