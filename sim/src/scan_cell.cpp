@@ -235,27 +235,43 @@ ViewPlan plan_scan_views(const std::string& mjcf_path, const TriangleMesh& cad_C
         any[i] = 1;
       }
   }
-  // Greedy set cover (ties: the earlier candidate).
-  std::vector<char> covered(n_targets, 0);
+  // Greedy weighted set cover (ties: the earlier candidate). A target seen by few candidates
+  // (in a hole, behind the fixture) weighs more than one every view sees (a top face): weight
+  // 1/sqrt(candidates that see it); a wall probe (where a fin's face meets its root) weighs
+  // twice and wants two views, since one oblique view gives only a few scan lines of a fin.
+  std::vector<int> seen_by(n_targets, 0);
+  for (const auto& c : cands)
+    for (auto i : c.seen) ++seen_by[i];
+  std::vector<double> weight(n_targets, 0.0);
+  std::vector<int> need(n_targets, 1);
+  double total_weight = 0;
+  for (std::size_t i = 0; i < n_targets; ++i) {
+    const bool probe = i >= T.surface;
+    need[i] = probe ? 2 : 1;
+    weight[i] = seen_by[i] > 0 ? (probe ? 2.0 : 1.0) / std::sqrt(static_cast<double>(seen_by[i])) : 0.0;
+    total_weight += weight[i] * need[i];
+  }
+  std::vector<int> times(n_targets, 0);
   std::size_t n_covered = 0;
   std::vector<char> used(cands.size(), 0);
   const double total = static_cast<double>(std::max<std::size_t>(1, n_targets));
   while (static_cast<int>(plan.views.size()) < p.max_views) {
-    std::size_t best = cands.size(), best_gain = 0;
+    std::size_t best = cands.size();
+    double best_gain = 0;
     for (std::size_t c = 0; c < cands.size(); ++c) {
       if (used[c]) continue;
-      std::size_t gain = 0;
-      for (auto i : cands[c].seen) gain += !covered[i];
+      double gain = 0;
+      for (auto i : cands[c].seen) gain += times[i] < need[i] ? weight[i] : 0.0;
       if (gain > best_gain) {
         best_gain = gain;
         best = c;
       }
     }
-    if (best == cands.size() || (!plan.views.empty() && static_cast<double>(best_gain) / total < p.min_gain)) break;
+    if (best == cands.size() || (!plan.views.empty() && best_gain < p.min_gain * total_weight)) break;
     used[best] = 1;
     for (auto i : cands[best].seen) {
-      n_covered += !covered[i];
-      covered[i] = 1;
+      n_covered += times[i] == 0;
+      ++times[i];
     }
     plan.views.push_back(cands[best].view);
     plan.names.push_back(cands[best].name);
