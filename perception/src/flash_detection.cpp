@@ -85,6 +85,120 @@ Plane fit_plane(const std::vector<Vec3>& pts) {
 
 }  // namespace
 
+// Direction: with the fin normal up, walk so that tangent · (n_fin × n_surface) > 0.
+void orient_path(FlashPath& path) {
+  double dir = 0;
+  for (std::size_t i = 1; i < path.points_C.size(); ++i)
+    dir += (path.points_C[i] - path.points_C[i - 1]).dot(path.fin_normal_C.cross(path.normals_C[i]));
+  if (dir < 0) {
+    std::reverse(path.points_C.begin(), path.points_C.end());
+    std::reverse(path.normals_C.begin(), path.normals_C.end());
+  }
+}
+
+int close_hole_arc(FlashPath& path, const MeshBvh& cad_C, const Vec3& w, double step, double fit_tol);
+
+// Arcs of one hole's ring seen by different views come out as separate open paths, the parts
+// between them unseen. Open paths that lie on one circle (a joint fit within `fit_tol`, CAD
+// normals facing its centre: a hole wall, fin normals within 10°) become one path: the points
+// ordered by angle about the circle from the widest gap on, the other gaps filled along the
+// circle at steps of at most `step` where the CAD wall is (every added point within `fit_tol`
+// of the surface); close_hole_arc then closes the widest gap when the arcs span over half the
+// ring. Returns how many paths were joined into others.
+int merge_hole_arcs(std::vector<FlashPath>& paths, const MeshBvh& cad_C, double step, double fit_tol) {
+  const auto joint_fit = [&](const std::vector<std::size_t>& ids) {
+    std::vector<Vec3> pts, nrm;
+    for (auto k : ids) {
+      pts.insert(pts.end(), paths[k].points_C.begin(), paths[k].points_C.end());
+      nrm.insert(nrm.end(), paths[k].normals_C.begin(), paths[k].normals_C.end());
+    }
+    return fit_arc(pts, paths[ids.front()].fin_normal_C, nrm);
+  };
+  const auto on_hole = [&](const ArcFit& a) {
+    return a.ok && a.radius >= 1e-3 && a.radius <= 0.1 && a.rms <= fit_tol && a.facing >= 0.8;
+  };
+  // Groups grow greedily: a path joins the first group whose joint fit stays a hole circle.
+  std::vector<std::vector<std::size_t>> groups;
+  for (std::size_t k = 0; k < paths.size(); ++k) {
+    if (paths[k].closed || paths[k].points_C.size() < 3) continue;
+    bool placed = false;
+    for (auto& g : groups) {
+      if (std::abs(paths[g.front()].fin_normal_C.dot(paths[k].fin_normal_C)) < std::cos(M_PI / 18)) continue;
+      std::vector<std::size_t> trial = g;
+      trial.push_back(k);
+      if (!on_hole(joint_fit(trial))) continue;
+      g = std::move(trial);
+      placed = true;
+      break;
+    }
+    if (!placed) groups.push_back({k});
+  }
+  int joined = 0;
+  std::vector<char> drop(paths.size(), 0);
+  for (const auto& g : groups) {
+    if (g.size() < 2) continue;
+    const ArcFit arc = joint_fit(g);
+    std::vector<Vec3> pts, nrm;
+    for (auto k : g) {
+      pts.insert(pts.end(), paths[k].points_C.begin(), paths[k].points_C.end());
+      nrm.insert(nrm.end(), paths[k].normals_C.begin(), paths[k].normals_C.end());
+    }
+    std::vector<std::size_t> order(pts.size());
+    std::iota(order.begin(), order.end(), std::size_t{0});
+    std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return arc.angle[a] < arc.angle[b]; });
+    // Start after the widest gap (cyclically).
+    std::size_t start = 0;
+    double widest = -1;
+    for (std::size_t i = 0; i < order.size(); ++i) {
+      const double a0 = arc.angle[order[i]];
+      const double a1 = i + 1 < order.size() ? arc.angle[order[i + 1]] : arc.angle[order[0]] + 2 * M_PI;
+      if (a1 - a0 > widest) {
+        widest = a1 - a0;
+        start = (i + 1) % order.size();
+      }
+    }
+    FlashPath merged;
+    merged.region = paths[g.front()].region;
+    merged.fin_normal_C = paths[g.front()].fin_normal_C;
+    bool ok = true;
+    for (std::size_t i = 0; i < order.size() && ok; ++i) {
+      const std::size_t a = order[(start + i) % order.size()];
+      if (i > 0) {
+        // Fill a gap to the previous point along the circle.
+        const std::size_t b = order[(start + i - 1) % order.size()];
+        const double gap = std::remainder(arc.angle[a] - arc.angle[b], 2 * M_PI);
+        const int k = static_cast<int>(std::floor(std::abs(gap) * arc.radius / step));
+        const double hb = arc.w.dot(pts[b]), ha = arc.w.dot(pts[a]);
+        for (int j = 1; j < k && ok; ++j) {
+          const double f = static_cast<double>(j) / k;
+          const Vec3 q = arc.point(arc.angle[b] + gap * f, hb + f * (ha - hb));
+          const auto cp = cad_C.closest(q, 4 * fit_tol);
+          ok = cp.triangle >= 0 && cp.distance <= fit_tol;
+          if (!ok) break;
+          merged.points_C.push_back(q);
+          merged.normals_C.push_back(cad_C.mesh().triangle_normal(static_cast<std::size_t>(cp.triangle)));
+        }
+      }
+      merged.points_C.push_back(pts[a]);
+      merged.normals_C.push_back(nrm[a]);
+    }
+    if (!ok) continue;  // the circle leaves the wall somewhere: not one hole after all
+    orient_path(merged);
+    close_hole_arc(merged, cad_C, merged.fin_normal_C, step, fit_tol);
+    for (std::size_t i = 1; i < g.size(); ++i) drop[g[i]] = 1;
+    paths[g.front()] = std::move(merged);
+    joined += static_cast<int>(g.size()) - 1;
+  }
+  std::size_t out = 0;
+  for (std::size_t k = 0; k < paths.size(); ++k)
+    if (!drop[k]) {
+      if (out != k) paths[out] = std::move(paths[k]);
+      ++out;
+    }
+  paths.resize(out);
+  return joined;
+}
+
 // A hole's flash is a ring, so its root is a closed loop even where part of it was not seen.
 // An open path that runs more than half way round a circle (in the plane across the fin
 // normal `w`, fitted within `fit_tol`) whose CAD normals point at the circle's centre (a hole
@@ -851,14 +965,7 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
           path.fin_normal_C = fn;
         }
       }
-      // Direction: with the fin normal up, walk so that tangent · (n_fin × n_surface) > 0.
-      double dir = 0;
-      for (std::size_t i = 1; i < path.points_C.size(); ++i)
-        dir += (path.points_C[i] - path.points_C[i - 1]).dot(path.fin_normal_C.cross(path.normals_C[i]));
-      if (dir < 0) {
-        std::reverse(path.points_C.begin(), path.points_C.end());
-        std::reverse(path.normals_C.begin(), path.normals_C.end());
-      }
+      orient_path(path);
       // Extent, not travel: a short zig-zag of boundary points is not a grinding line.
       double extent = 0;
       for (const auto& q : path.points_C) extent = std::max(extent, (q - path.points_C.front()).norm());
@@ -872,6 +979,11 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       }
       res.paths.push_back(std::move(path));
     }
+  }
+  if (P.close_holes) {
+    const int joined = merge_hole_arcs(res.paths, cad_C, std::max(P.path_voxel, res.spacing),
+                                       std::max(0.15e-3, 3 * res.noise_sigma));
+    if (joined > 0) spdlog::debug("detect: {} arc(s) of hole rings joined to others", joined);
   }
   res.ran = true;
   if (res.paths.empty()) res.message = "nothing to grind: no flash region found";
