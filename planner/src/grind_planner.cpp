@@ -519,8 +519,16 @@ Pose grind_tool_pose(const Vec3& p, const Vec3& n, const Vec3& t, const Vec3& f,
   return X;
 }
 
-GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPath& path,
+GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const GrindPath& path,
                        const GrindParams& P) {
+  check_param(P.limit_margin >= 0 && P.limit_margin <= 0.2, "limit_margin", "0..0.2 [rad]", P.limit_margin);
+  // Plans stay `limit_margin` inside every position range: a servo tracking a reference at the
+  // very limit overshoots it, and the executor clamps its reference inside the range.
+  RobotModel robot = robot_in;
+  for (auto& L : robot.limits) {
+    L.lower += P.limit_margin;
+    L.upper -= P.limit_margin;
+  }
   // ---- Input checks (bad input throws).
   check_param(P.spacing > 0 && std::isfinite(P.spacing), "spacing", "> 0 [m]", P.spacing);
   check_param(P.feed > 0 && std::isfinite(P.feed), "feed", "> 0 [m/s]", P.feed);

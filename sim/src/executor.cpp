@@ -6,6 +6,7 @@
 #include <deque>
 #include <string>
 
+#include "flashtwin/core/format.hpp"
 #include "flashtwin/core/errors.hpp"
 #include "flashtwin/sim/mujoco_handles.hpp"
 
@@ -684,9 +685,11 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     }
     if (params.max_force > 0 && normal_force > params.max_force) {
       res.status = ExecStatus::kForceLimit;
-      res.message = "protective stop at t = " + std::to_string(t_sim) + " s: process force " +
-                    std::to_string(normal_force) + " N above max_force " +
-                    std::to_string(params.max_force) + " N (tool driven into the part)";
+      res.message = strf("protective stop at t = %.3f s: process force %.0f N above max_force %.0f N "
+                         "(cutting %.0f N, body contact %.0f N: %s)",
+                         t_sim, normal_force, params.max_force, normal_force - penalty, penalty,
+                         penalty > 0.5 * normal_force ? "tool driven into the part"
+                                                      : "too much material in one cut");
       ++n;
       break;
     }

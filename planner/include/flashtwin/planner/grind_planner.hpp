@@ -45,6 +45,8 @@ struct GrindPath {
 
 /// Options of plan_grind (defaults for a 12 mm burr on steel flash).
 struct GrindParams {
+  double limit_margin = 0.02;   ///< [rad] the plan keeps this far inside each joint's position
+                                ///< range (the executor clamps its reference 0.01 rad inside)
   double spacing = 0.0005;      ///< arc-length spacing of the samples along the path [m]; the input
                                 ///< points are thinned to at least this spacing first
   double feed = 0.005;          ///< cutting feed along the tool path (passes and pass links) [m/s]
