@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <utility>
+#include <vector>
 
 #include "flashtwin/core/errors.hpp"
 #include "flashtwin/core/mesh_query.hpp"
@@ -194,13 +196,13 @@ namespace {
 
 // A round wall of radius R (z from 0 to 20 mm, 96 facets) with a 1 mm ring fin 2 mm wide at
 // z = 10 mm on its open side: inside a hole (`hole`, normals towards the axis) or around a
-// boss (normals away from it). Fin points over azimuths in (hide_from, hide_to) are not seen.
+// boss (normals away from it). Fin points over the azimuth intervals `hide` [deg] are not seen.
 struct RoundCase {
   TriangleMesh cad;
   PointCloud scan_C;
 };
 
-RoundCase round_wall_with_ring(double R, bool hole, double hide_from, double hide_to) {
+RoundCase round_wall_with_ring(double R, bool hole, const std::vector<std::pair<double, double>>& hide) {
   RoundCase rc;
   const int n = 96;
   for (int i = 0; i < n; ++i) {
@@ -223,7 +225,9 @@ RoundCase round_wall_with_ring(double R, bool hole, double hide_from, double hid
   const double s = 0.03e-3, side = hole ? -1 : 1;  // the fin grows away from the solid
   auto hidden = [&](double a) {
     const double deg = std::fmod(a * 180 / M_PI + 360, 360);
-    return deg > hide_from && deg < hide_to;
+    for (const auto& [from, to] : hide)
+      if (deg > from && deg < to) return true;
+    return false;
   };
   const double apothem = R * std::cos(M_PI / n);
   for (double a = 0; a < 2 * M_PI; a += 0.1e-3 / R) {
@@ -249,7 +253,7 @@ TEST(FlashDetection, PartlySeenHoleRingIsClosedAlongItsCircle) {
   // A 12 mm hole whose ring fin is not seen over 110 degrees: without the hole step the path
   // is an open 250-degree arc; with it, one closed loop on the wall all the way round.
   const double R = 0.006;
-  const RoundCase rc = round_wall_with_ring(R, true, 100, 210);
+  const RoundCase rc = round_wall_with_ring(R, true, {{100, 210}});
   const MeshBvh cad(rc.cad);
   DetectionParams off;
   off.close_holes = false;
@@ -273,10 +277,36 @@ TEST(FlashDetection, PartlySeenHoleRingIsClosedAlongItsCircle) {
   }
 }
 
+TEST(FlashDetection, HoleRingSeenInTwoArcsIsOneLoopOnItsCircle) {
+  // The ring seen in two arcs (as two views see a hole from either side), unseen over 60-120
+  // and 200-260 degrees: two open paths without the hole step, one closed loop on the circle
+  // with it, the gaps filled along the wall.
+  const double R = 0.006;
+  const RoundCase rc = round_wall_with_ring(R, true, {{60, 120}, {200, 260}});
+  const MeshBvh cad(rc.cad);
+  DetectionParams off;
+  off.close_holes = false;
+  const auto r_off = detect_flash(to_scanner(rc.scan_C), cad, kX_CM, off);
+  ASSERT_TRUE(r_off.ran) << r_off.message;
+  EXPECT_EQ(r_off.paths.size(), 2u) << r_off.message;
+  const auto r_on = detect_flash(to_scanner(rc.scan_C), cad, kX_CM);
+  ASSERT_TRUE(r_on.ran) << r_on.message;
+  ASSERT_EQ(r_on.paths.size(), 1u) << r_on.message;
+  const auto& loop = r_on.paths[0];
+  EXPECT_TRUE(loop.closed);
+  EXPECT_NEAR(loop.length(), 2 * M_PI * R, 0.03 * 2 * M_PI * R);
+  for (std::size_t i = 0; i < loop.points_C.size(); ++i) {
+    const Vec3& p = loop.points_C[i];
+    EXPECT_NEAR(std::hypot(p.x(), p.y()), R, 0.05e-3);
+    EXPECT_NEAR(p.z(), 0.01, 0.1e-3);
+    EXPECT_LT((loop.points_C[(i + 1) % loop.points_C.size()] - p).norm(), 1e-3);
+  }
+}
+
 TEST(FlashDetection, PartlySeenRingAroundABossStaysOpen) {
   // The same ring outside a round boss: an outer contour may have real gaps, so it is not
   // closed (the wall normals point away from the circle's centre).
-  const RoundCase rc = round_wall_with_ring(0.02, false, 100, 210);
+  const RoundCase rc = round_wall_with_ring(0.02, false, {{100, 210}});
   const MeshBvh cad(rc.cad);
   const auto r = detect_flash(to_scanner(rc.scan_C), cad, kX_CM);
   ASSERT_TRUE(r.ran) << r.message;
