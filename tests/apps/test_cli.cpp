@@ -334,6 +334,11 @@ TEST(Cli, RunRejectsBadScenariosWithExitTwo) {
       << "\ncasting: {family: mesh, mesh: /nonexistent/part.stl}\n";
   }
   {
+    std::ofstream f(tmp + "/no_sweep.yaml");  // a scenario without an expect_sweep: block
+    f << "name: n\nrobot: " << ftest::source_path("models/robots/ft6.yaml")
+      << "\ncasting: {family: flanged_plate}\n";
+  }
+  {
     std::ofstream f(tmp + "/alias_cycle.yaml");
     f << "name: a\nrobot: " << ftest::source_path("models/robots/ft6.yaml")
       << "\ncasting: {family: flanged_plate}\nscanner: {views: &v [*v]}\n";
@@ -367,7 +372,7 @@ TEST(Cli, RunRejectsBadScenariosWithExitTwo) {
       {"run " + sc + " -o " + tmp + "/o11 --set cell.table.size=[0.05,0.05,0.05]", "table top"},
       {"run " + tmp + "/alias_cycle.yaml -o " + tmp + "/o12", "alias_cycle.yaml"},
       {"run " + tmp + "/truncated_mesh.yaml -o " + tmp + "/o13", "truncated.stl"},
-      {"sweep " + sc + " -o " + tmp + "/o14 --check", "expect_sweep"},
+      {"sweep " + tmp + "/no_sweep.yaml -o " + tmp + "/o14 --check", "expect_sweep"},
   };
   for (const auto& c : cases) {
     const CliRun r = run("-q " + c.args);  // -q: no progress lines on stderr, only the error
