@@ -59,8 +59,11 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
         frame_hook(mm, d, t0 + t, grid);
       };
     }
+    // The burr this path was planned for (a rack burr after a tool change; same length).
+    sim::ToolParams path_tool = tool;
+    if (g.tool_radius > 0) path_tool.radius = g.tool_radius;
     const sim::ExecutionResult r =
-        sim::execute_trajectory(*model, tr, &grid, tool, sc.execution.force, ep);
+        sim::execute_trajectory(*model, tr, &grid, path_tool, sc.execution.force, ep);
     ++executed;
     spdlog::debug("execution: path {}: {} ({}), {:.1f} s simulated in {:.2f} s, tracking rmse "
                   "{:.3f} mm, flash removed {:.2f} mm3, gouge {:.3f} mm3, {} removal steps in {} steps",

@@ -4,6 +4,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -161,16 +162,39 @@ ScenarioScan scan_scenario(const Scenario& sc, const std::string& cell_dir, int 
   s.files = sim::write_cell(sc.robot, s.setup.spec, s.setup.casting, cell_dir);
   s.params = sc.scan;
   s.params.threads = std::max(1, threads);
-  // Scan planning from the CAD at the nominal placement (the fixture's; a randomly placed part
-  // has none, and keeps the scenario's views). Nothing of the flashes is known here.
+  const Pose X_WM_true = sim::perturb_pose(s.setup.spec.X_WM, sc.calibration_translation,
+                                           sc.calibration_rotation, sc.seed);
+  // Scan planning from the CAD (views: auto). Nothing of the flashes is known here. At a
+  // nominal placement (the fixture's) the plan starts from it. A randomly placed part has none:
+  // the cell first scans with the scenario's fixed views (a survey), registers that scan as
+  // perception would, and plans from the pose it found; without a confident pose the survey is
+  // the scan.
   if (sc.auto_views && !sc.placement.random) {
     s.plan = sim::plan_scan_views(s.files.mjcf, s.setup.casting.nominal, s.setup.spec.X_WC, s.setup.spec.X_WM,
                                   sc.scan.noise, sc.view_plan, s.params.threads);
     s.params.views = s.plan.views;
     s.planned = true;
+  } else if (sc.auto_views) {
+    const sim::CellScan survey =
+        sim::scan_cell(s.files.mjcf, s.setup.casting, s.params, s.setup.spec.X_WM, X_WM_true);
+    perception::RegistrationParams rp;
+    rp.remove_support_plane = true;
+    rp.viewpoint = Vec3::Zero();
+    const auto reg = perception::register_scan(survey.result.cloud_M,
+                                               *perception::ModelTarget::from_mesh_cached(s.setup.casting.nominal), rp);
+    if (!reg.confident) {
+      spdlog::info("scan plan: the survey scan's pose is not confident ({}): the survey is the scan", reg.message);
+      s.scan = survey;
+      return s;
+    }
+    const Pose X_WC_est = s.setup.spec.X_WM * reg.T_target_source.inverse();
+    s.plan = sim::plan_scan_views(s.files.mjcf, s.setup.casting.nominal, X_WC_est, s.setup.spec.X_WM,
+                                  sc.scan.noise, sc.view_plan, s.params.threads);
+    s.params.views = s.plan.views;
+    s.params.seed = sc.scan.seed + 7919;  // a new scan, not the survey's noise again
+    s.planned = true;
+    s.surveyed = true;
   }
-  const Pose X_WM_true = sim::perturb_pose(s.setup.spec.X_WM, sc.calibration_translation,
-                                           sc.calibration_rotation, sc.seed);
   s.scan = sim::scan_cell(s.files.mjcf, s.setup.casting, s.params, s.setup.spec.X_WM, X_WM_true);
   return s;
 }
@@ -216,6 +240,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   m["scan.points"] = cloud_M.size();
   m["scan.rays_per_s"] = scan.result.rays_per_s();
   m["scan.views"] = ss.params.views.size();
+  m["scan.surveyed"] = ss.surveyed;
   if (ss.planned) {
     m["scan.plan_unseen_fraction"] = ss.plan.unseen_fraction;
     m["scan.plan_unseen_by_any"] = ss.plan.unseen_by_any;
@@ -321,7 +346,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     const auto t_plan = Clock::now();
     const Pose X_BC_est = setup.spec.X_WB.inverse() * setup.spec.X_WM * X_CM_est.inverse();
     double vmax = 0, amax = 0, manip = 1e300, total_time = 0, length = 0;
-    int planned = 0, failed = 0, skipped = 0;
+    int planned = 0, failed = 0, skipped = 0, tool_changes = 0;
     std::string first_failure;
     json plans = json::array();
     for (std::size_t k = 0; k < det.paths.size(); ++k) {
@@ -330,6 +355,23 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
       planner::GrindResult g;
       try {
         g = planner::plan_grind(sc.robot, X_BC_est, gp, sc.grind);
+        // A hole too narrow for the mounted burr: the largest burr of the rack that fits.
+        if (g.status == planner::GrindStatus::kToolTooLarge) {
+          std::vector<double> rack = sc.tool_rack;
+          std::sort(rack.rbegin(), rack.rend());
+          for (const double r : rack) {
+            if (r >= sc.robot.tool.radius) continue;
+            RobotModel smaller = sc.robot;
+            smaller.tool.radius = r;
+            planner::GrindResult gs = planner::plan_grind(smaller, X_BC_est, gp, sc.grind);
+            if (gs.status == planner::GrindStatus::kToolTooLarge) continue;
+            spdlog::info("path {}: burr of radius {:.1f} mm from the tool rack ({})", k, r * 1e3,
+                         gs.ok() ? "planned" : gs.message);
+            tool_changes += gs.ok();
+            g = std::move(gs);
+            break;
+          }
+        }
       } catch (const ArgumentError& e) {
         g.status = planner::GrindStatus::kDiscontinuous;
         g.message = std::string("path rejected: ") + e.what();
@@ -375,6 +417,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     m["trajectory.paths_planned"] = planned;
     m["trajectory.paths_failed"] = failed;
     m["trajectory.paths_skipped_tool_too_large"] = skipped;
+    m["trajectory.paths_with_rack_tool"] = tool_changes;
     m["trajectory.max_joint_velocity_ratio"] = vmax;
     m["trajectory.max_joint_accel_ratio"] = amax;
     m["trajectory.min_manipulability"] = finite_or_null(planned ? manip : NAN);

@@ -381,6 +381,17 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     if (sc.robot.tool.length < sc.robot.tool.radius)
       t.fail("expected length >= radius (the ball-ended burr needs it)");
   }
+  if (root.has("tool_rack")) {
+    const ConfigNode r = root.at("tool_rack");
+    if (!r.is_sequence()) r.fail("expected a list of burr radii [m], e.g. [0.004, 0.003] (may be empty)");
+    sc.tool_rack.clear();
+    for (std::size_t i = 0; i < r.size(); ++i) {
+      const double v = r[i].as_double();
+      if (!(v >= 5e-4 && v <= 0.05)) r[i].fail("expected a burr radius in [0.0005, 0.05] m");
+      if (v > sc.robot.tool.length) r[i].fail("expected a radius <= the burr length");
+      sc.tool_rack.push_back(v);
+    }
+  }
   if (root.has("execution")) {
     const ConfigNode ex = root.at("execution");
     auto& e = sc.execution;

@@ -736,6 +736,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
 
   // ---- Passes: equal radial depths, the last with the cutter against the wall.
   GrindResult res;
+  res.tool_radius = radius;
   res.passes =
       path.fin_height > 0
           ? std::max(1, static_cast<int>(std::ceil(path.fin_height / P.max_depth_of_cut - 1e-9)))

@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <set>
 #include <string>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -164,6 +165,23 @@ TEST(Scenario, RejectsMissingFilesUnknownKeysAndBadValues) {
     FAIL();
   } catch (const ConfigError& e) {
     EXPECT_NE(std::string(e.what()).find("robot"), std::string::npos) << e.what();
+  }
+  // Scan planning and the tool rack.
+  EXPECT_TRUE(pipeline::load_scenario(write("auto.yaml", ok)).auto_views);
+  EXPECT_FALSE(pipeline::load_scenario(write("fixed.yaml", ok + "scanner: {views: default}\n")).auto_views);
+  EXPECT_EQ(pipeline::load_scenario(write("rack.yaml", ok + "tool_rack: [0.003]\n")).tool_rack,
+            std::vector<double>{0.003});
+  for (const auto& [name, text, needle] :
+       {std::tuple<std::string, std::string, std::string>{"views.yaml", "scanner: {views: sideways}\n", "scanner.views"},
+        {"maxv.yaml", "scanner: {auto_views: {max_views: 0}}\n", "scanner.auto_views.max_views"},
+        {"rack1.yaml", "tool_rack: 0.003\n", "tool_rack"},
+        {"rack2.yaml", "tool_rack: [0.3]\n", "tool_rack"}}) {
+    try {
+      pipeline::load_scenario(write(name, ok + text));
+      ADD_FAILURE() << name;
+    } catch (const ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+    }
   }
 }
 

@@ -48,7 +48,8 @@ struct ScenarioScan {
   sim::CellFiles files;
   sim::CellScan scan;  ///< X_WM_nominal is the calibrated mount, X_WM_true the perturbed one
   sim::ScanParams params;  ///< what was scanned: the scenario's, with the planned views
-  bool planned = false;    ///< the views were planned (`views: auto` at a known placement)
+  bool planned = false;    ///< the views were planned (`views: auto`)
+  bool surveyed = false;   ///< planned from the pose of a survey scan (random placement)
   sim::ViewPlan plan;      ///< when planned
 };
 

@@ -79,6 +79,10 @@ struct Scenario {
   double calibration_rotation = 0;     ///< [rad]
   perception::DetectionParams detection;  ///< `perception.detection:` overrides
   planner::GrindParams grind;             ///< `planning:` overrides
+  /// `tool_rack:` radii [m] of the ball burrs the cell's tool changer holds besides the mounted
+  /// one (same length): a path in a hole too narrow for the mounted burr is planned with the
+  /// largest rack burr that fits (a tool change in the job). Default: 8 and 6 mm burrs.
+  std::vector<double> tool_rack{0.004, 0.003};
   ExecutionSettings execution;            ///< `execution:` and `process:` overrides
   std::vector<Expectation> expect;        ///< `expect:` bounds checked by regression runs
   SweepExpectation expect_sweep;          ///< `expect_sweep:` distribution bounds over seeds

@@ -165,6 +165,7 @@ struct GrindResult {
   double base_spin = 0;  ///< chosen rotation of x_T about z_T from the reference [rad]
   int seeds_tried = 0, seeds_completed = 0;  ///< (branch, spin) seeds tracked / that completed
 
+  double tool_radius = 0;  ///< [m] the burr this plan is for (the robot's tool when planned)
   int passes = 0;
   std::vector<double> pass_offsets;  ///< extra axis offset e of each pass [m], the last one
                                      ///< GrindParams::stock_allowance
