@@ -113,8 +113,13 @@ TEST(Scenario, OverridesSetKeysAndUnknownKeysAreStillReported) {
   EXPECT_THROW(load_scenario(path, {"process.voxel_size=abc"}), ConfigError);  // not a number
   EXPECT_THROW(load_scenario(path, {"noequals"}), ConfigError);
   EXPECT_THROW(load_scenario(path, {"name.x=1"}), ConfigError);  // below a scalar
-  // List elements by index (the housing scenario lists its scanner views).
-  const std::string housing = ftest::source_path("scenarios/housing.yaml");
+  // List elements by index (a scenario that lists its scanner views).
+  const std::string housing = ftest::temp_dir("views_list") + "/views.yaml";
+  {
+    std::ofstream f(housing);
+    f << "name: v\nrobot: " << ftest::source_path("models/robots/ft6.yaml")
+      << "\ncasting: {family: housing}\nscanner:\n  views:\n    - {kind: line}\n";
+  }
   EXPECT_NO_THROW(load_scenario(housing, {"scanner.views.0.standoff=0.31"}));
   EXPECT_THROW(load_scenario(housing, {"scanner.views.0.standoff=99"}), ConfigError);
   EXPECT_THROW(load_scenario(housing, {"scanner.views.9.standoff=0.3"}), ConfigError);
