@@ -1,8 +1,10 @@
 #include "flashtwin/sim/scan_cell.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <string>
+#include <thread>
 
 #include "flashtwin/core/errors.hpp"
 #include "flashtwin/core/random.hpp"
@@ -226,15 +228,27 @@ ViewPlan plan_scan_views(const std::string& mjcf_path, const TriangleMesh& cad_C
 
   // What each candidate sees of the targets, by the scanner's own rules.
   const std::size_t n_targets = target_W.size();
-  std::vector<char> any(n_targets, 0);
-  for (auto& c : cands) {
-    const std::vector<char> sees = view_sees(embree_scene, X_WM, c.view, target_W, normal_W, noise.max_incidence);
-    for (std::size_t i = 0; i < n_targets; ++i)
-      if (sees[i]) {
-        c.seen.push_back(static_cast<std::uint32_t>(i));
-        any[i] = 1;
-      }
+  // Candidates are independent: `threads` workers take them in turn (Embree's queries are
+  // thread-safe); each candidate's answer is the same for any thread count.
+  std::atomic<std::size_t> next{0};
+  auto work = [&] {
+    for (std::size_t c; (c = next++) < cands.size();) {
+      const std::vector<char> sees =
+          view_sees(embree_scene, X_WM, cands[c].view, target_W, normal_W, noise.max_incidence);
+      for (std::size_t i = 0; i < n_targets; ++i)
+        if (sees[i]) cands[c].seen.push_back(static_cast<std::uint32_t>(i));
+    }
+  };
+  {
+    const int nt = std::max(1, std::min(threads, static_cast<int>(cands.size())));
+    std::vector<std::thread> pool;
+    for (int k = 1; k < nt; ++k) pool.emplace_back(work);
+    work();
+    for (auto& th : pool) th.join();
   }
+  std::vector<char> any(n_targets, 0);
+  for (const auto& c : cands)
+    for (auto i : c.seen) any[i] = 1;
   // Greedy weighted set cover (ties: the earlier candidate). A target seen by few candidates
   // (in a hole, behind the fixture) weighs more than one every view sees (a top face): weight
   // 1/sqrt(candidates that see it); a wall probe (where a fin's face meets its root) weighs
