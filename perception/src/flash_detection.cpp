@@ -125,12 +125,18 @@ void snap_to_circle(FlashPath& path, const Vec3& w) {
 // of the surface); close_hole_arc then closes the widest gap when the arcs span over half the
 // ring. Returns how many paths were joined into others.
 int merge_hole_arcs(std::vector<FlashPath>& paths, const MeshBvh& cad_C, double step, double fit_tol) {
-  const auto joint_fit = [&](const std::vector<std::size_t>& ids) {
-    std::vector<Vec3> pts, nrm;
+  // The points and normals of several paths, back to back.
+  const auto gather = [&](const std::vector<std::size_t>& ids, std::vector<Vec3>& pts, std::vector<Vec3>& nrm) {
+    pts.clear();
+    nrm.clear();
     for (auto k : ids) {
       pts.insert(pts.end(), paths[k].points_C.begin(), paths[k].points_C.end());
       nrm.insert(nrm.end(), paths[k].normals_C.begin(), paths[k].normals_C.end());
     }
+  };
+  const auto joint_fit = [&](const std::vector<std::size_t>& ids) {
+    std::vector<Vec3> pts, nrm;
+    gather(ids, pts, nrm);
     return fit_arc(pts, paths[ids.front()].fin_normal_C, nrm);
   };
   const auto on_hole = [&](const ArcFit& a) {
@@ -156,12 +162,9 @@ int merge_hole_arcs(std::vector<FlashPath>& paths, const MeshBvh& cad_C, double 
   std::vector<char> drop(paths.size(), 0);
   for (const auto& g : groups) {
     if (g.size() < 2) continue;
-    const ArcFit arc = joint_fit(g);
     std::vector<Vec3> pts, nrm;
-    for (auto k : g) {
-      pts.insert(pts.end(), paths[k].points_C.begin(), paths[k].points_C.end());
-      nrm.insert(nrm.end(), paths[k].normals_C.begin(), paths[k].normals_C.end());
-    }
+    gather(g, pts, nrm);
+    const ArcFit arc = fit_arc(pts, paths[g.front()].fin_normal_C, nrm);
     std::vector<std::size_t> order(pts.size());
     std::iota(order.begin(), order.end(), std::size_t{0});
     std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return arc.angle[a] < arc.angle[b]; });

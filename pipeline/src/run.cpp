@@ -156,6 +156,24 @@ std::vector<std::string> check_expectations(const Scenario& sc, const json& metr
   return bad;
 }
 
+double unseen_parting_fraction(const ScenarioScan& ss) {
+  const Pose X_CM_true = ss.setup.spec.X_WC.inverse() * ss.scan.X_WM_true;
+  const auto& r = ss.scan.result;
+  std::vector<Vec3> flash_C;
+  for (std::size_t i = 0; i < r.cloud_M.size(); ++i)
+    if (r.truth[i] == sim::kTruthFlash) flash_C.push_back(X_CM_true * r.cloud_M.points[i].cast<double>());
+  std::vector<Curve> roots;
+  for (const auto& f : ss.setup.casting.fins) roots.push_back({f.root, f.closed});
+  return unseen_root_fraction(roots, flash_C);
+}
+
+perception::RegistrationParams cell_registration_params() {
+  perception::RegistrationParams rp;
+  rp.remove_support_plane = true;
+  rp.viewpoint = Vec3::Zero();
+  return rp;
+}
+
 ScenarioScan scan_scenario(const Scenario& sc, const std::string& cell_dir, int threads) {
   ScenarioScan s;
   s.setup = setup_cell(sc);
@@ -177,11 +195,9 @@ ScenarioScan scan_scenario(const Scenario& sc, const std::string& cell_dir, int 
   } else if (sc.auto_views) {
     const sim::CellScan survey =
         sim::scan_cell(s.files.mjcf, s.setup.casting, s.params, s.setup.spec.X_WM, X_WM_true);
-    perception::RegistrationParams rp;
-    rp.remove_support_plane = true;
-    rp.viewpoint = Vec3::Zero();
     const auto reg = perception::register_scan(survey.result.cloud_M,
-                                               *perception::ModelTarget::from_mesh_cached(s.setup.casting.nominal), rp);
+                                               *perception::ModelTarget::from_mesh_cached(s.setup.casting.nominal),
+                                               cell_registration_params());
     if (!reg.confident) {
       spdlog::info("scan plan: the survey scan's pose is not confident ({}): the survey is the scan", reg.message);
       s.scan = survey;
@@ -245,16 +261,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     m["scan.plan_unseen_fraction"] = ss.plan.unseen_fraction;
     m["scan.plan_unseen_by_any"] = ss.plan.unseen_by_any;
   }
-  {
-    // Scoring (truth): how much of the true flash roots no view saw.
-    const Pose X_CM_true = setup.spec.X_WC.inverse() * scan.X_WM_true;
-    std::vector<Vec3> flash_C;
-    for (std::size_t i = 0; i < cloud_M.size(); ++i)
-      if (scan.result.truth[i] == sim::kTruthFlash) flash_C.push_back(X_CM_true * cloud_M.points[i].cast<double>());
-    std::vector<Curve> roots;
-    for (const auto& f : setup.casting.fins) roots.push_back({f.root, f.closed});
-    m["scan.unseen_parting_fraction"] = unseen_root_fraction(roots, flash_C);
-  }
+  m["scan.unseen_parting_fraction"] = unseen_parting_fraction(ss);
   if (write && opt.write_scan) save_scan(ss, dir.string(), false);
 
   // --- Perception: pose, then flashes. Inputs: the scan in {M}, the CAD model, X_WM as
@@ -262,10 +269,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   progress(opt, "registration", 0.15);
   const auto t_perc = Clock::now();
   const auto target = perception::ModelTarget::from_mesh_cached(setup.casting.nominal);
-  perception::RegistrationParams rp;
-  rp.remove_support_plane = true;
-  rp.viewpoint = Vec3::Zero();
-  out.registration = perception::register_scan(cloud_M, *target, rp);
+  out.registration = perception::register_scan(cloud_M, *target, cell_registration_params());
   const auto& reg = out.registration;
   const Pose X_CM_est = reg.T_target_source;
   // Truth: where {M} really is relative to {C} (the calibrated X_WM is what perception used;

@@ -247,6 +247,17 @@ RoundCase round_wall_with_ring(double R, bool hole, const std::vector<std::pair<
   return rc;
 }
 
+// A closed loop on the round wall of radius R at the fin's mid height (z = 10 mm), no gap
+// between neighbours longer than 1 mm.
+void expect_loop_on_wall(const FlashPath& loop, double R) {
+  for (std::size_t i = 0; i < loop.points_C.size(); ++i) {
+    const Vec3& p = loop.points_C[i];
+    EXPECT_NEAR(std::hypot(p.x(), p.y()), R, 0.05e-3);
+    EXPECT_NEAR(p.z(), 0.01, 0.1e-3);
+    EXPECT_LT((loop.points_C[(i + 1) % loop.points_C.size()] - p).norm(), 1e-3);
+  }
+}
+
 }  // namespace
 
 TEST(FlashDetection, PartlySeenHoleRingIsClosedAlongItsCircle) {
@@ -269,12 +280,7 @@ TEST(FlashDetection, PartlySeenHoleRingIsClosedAlongItsCircle) {
   EXPECT_NEAR(loop.length(), 2 * M_PI * R, 0.03 * 2 * M_PI * R);
   // Every point on the wall at the fin's mid height, the added arc included; no gap between
   // neighbours longer than 1 mm.
-  for (std::size_t i = 0; i < loop.points_C.size(); ++i) {
-    const Vec3& p = loop.points_C[i];
-    EXPECT_NEAR(std::hypot(p.x(), p.y()), R, 0.05e-3);
-    EXPECT_NEAR(p.z(), 0.01, 0.1e-3);
-    EXPECT_LT((loop.points_C[(i + 1) % loop.points_C.size()] - p).norm(), 1e-3);
-  }
+  expect_loop_on_wall(loop, R);
 }
 
 TEST(FlashDetection, HoleRingSeenInTwoArcsIsOneLoopOnItsCircle) {
@@ -295,12 +301,7 @@ TEST(FlashDetection, HoleRingSeenInTwoArcsIsOneLoopOnItsCircle) {
   const auto& loop = r_on.paths[0];
   EXPECT_TRUE(loop.closed);
   EXPECT_NEAR(loop.length(), 2 * M_PI * R, 0.03 * 2 * M_PI * R);
-  for (std::size_t i = 0; i < loop.points_C.size(); ++i) {
-    const Vec3& p = loop.points_C[i];
-    EXPECT_NEAR(std::hypot(p.x(), p.y()), R, 0.05e-3);
-    EXPECT_NEAR(p.z(), 0.01, 0.1e-3);
-    EXPECT_LT((loop.points_C[(i + 1) % loop.points_C.size()] - p).norm(), 1e-3);
-  }
+  expect_loop_on_wall(loop, R);
 }
 
 TEST(FlashDetection, PartlySeenRingAroundABossStaysOpen) {

@@ -595,21 +595,6 @@ TEST(CellLayout, RobotBaseOrScannerInTheTableIsRefused) {
 // Scan planning (views: auto)
 // ---------------------------------------------------------------------------------------------
 
-namespace {
-
-double unseen_roots(const pipeline::ScenarioScan& ss) {
-  const Pose X_CM = ss.setup.spec.X_WC.inverse() * ss.scan.X_WM_true;
-  std::vector<Vec3> flash_C;
-  for (std::size_t i = 0; i < ss.scan.result.cloud_M.size(); ++i)
-    if (ss.scan.result.truth[i] == sim::kTruthFlash)
-      flash_C.push_back(X_CM * ss.scan.result.cloud_M.points[i].cast<double>());
-  std::vector<pipeline::Curve> roots;
-  for (const auto& f : ss.setup.casting.fins) roots.push_back({f.root, f.closed});
-  return pipeline::unseen_root_fraction(roots, flash_C);
-}
-
-}  // namespace
-
 TEST(ScanPlan, PlannedViewsSeeTheRootsTheFixedViewsMissBehindTheFixture) {
   // Default plates whose fixed five sweeps left 19-28 % of the true roots unseen (the fixture
   // blocks' shadows and the camera's side): the planned views see at least half of that.
@@ -623,7 +608,7 @@ TEST(ScanPlan, PlannedViewsSeeTheRootsTheFixedViewsMissBehindTheFixture) {
     ASSERT_TRUE(planned.planned);
     EXPECT_LE(planned.params.views.size(), 6u);
     EXPECT_LT(planned.plan.unseen_fraction, 0.06) << "seed " << seed;
-    const double u_fixed = unseen_roots(fixed), u_planned = unseen_roots(planned);
+    const double u_fixed = pipeline::unseen_parting_fraction(fixed), u_planned = pipeline::unseen_parting_fraction(planned);
     // Over default seeds 5001-5050 the planned views left p50 3.9 %, p90 8 %, worst 15 % unseen.
     EXPECT_GT(u_fixed, 0.15) << "seed " << seed;
     EXPECT_LT(u_planned, 0.5 * u_fixed) << "seed " << seed;

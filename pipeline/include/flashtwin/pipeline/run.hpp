@@ -53,6 +53,13 @@ struct ScenarioScan {
   sim::ViewPlan plan;      ///< when planned
 };
 
+/// Scoring (reads the truth): the share of the casting's true flash roots that no view of the
+/// scan saw (`scan.unseen_parting_fraction`, see unseen_root_fraction).
+double unseen_parting_fraction(const ScenarioScan& scan);
+
+/// Registration parameters for a cell scan: the table removed, normals facing {M}'s origin.
+perception::RegistrationParams cell_registration_params();
+
 /// Builds the scenario's cell in `cell_dir` and scans it with `threads` scanner threads (the
 /// true scanner mount carries the scenario's calibration error).
 ScenarioScan scan_scenario(const Scenario& scenario, const std::string& cell_dir, int threads);
