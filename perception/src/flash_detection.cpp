@@ -182,6 +182,7 @@ int merge_hole_arcs(std::vector<FlashPath>& paths, const MeshBvh& cad_C, double 
     FlashPath merged;
     merged.region = paths[g.front()].region;
     merged.fin_normal_C = paths[g.front()].fin_normal_C;
+    for (const std::size_t k : g) merged.fin_height = std::max(merged.fin_height, paths[k].fin_height);
     bool ok = true;
     for (std::size_t i = 0; i < order.size() && ok; ++i) {
       const std::size_t a = order[(start + i) % order.size()];
@@ -952,6 +953,7 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       path.region = static_cast<int>(r);
       path.closed = pl.closed;
       path.fin_normal_C = reg.normal_C;
+      path.fin_height = reg.max_height;
       // Moving average along the curve (wrapping for loops), then back onto the surface and
       // back to the mid height.
       const int N = static_cast<int>(pl.points.size());

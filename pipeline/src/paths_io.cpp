@@ -1,5 +1,7 @@
 #include "flashtwin/pipeline/paths_io.hpp"
 
+#include <cmath>
+
 #include <nlohmann/json.hpp>
 
 #include "flashtwin/core/errors.hpp"
@@ -52,6 +54,13 @@ std::vector<planner::GrindPath> read_paths_from_string(const std::string& text,
         throw InputError(name + ": " + where + ".closed: expected true or false, got " +
                          p["closed"].type_name());
       g.closed = p["closed"].get<bool>();
+    }
+    if (p.contains("fin_height")) {
+      const json& h = p["fin_height"];
+      if (!h.is_number() || !std::isfinite(h.get<double>()) || h.get<double>() < 0)
+        throw InputError(name + ": " + where + ".fin_height: expected a number >= 0 [m], got " +
+                         h.dump());
+      g.fin_height = h.get<double>();
     }
     out.push_back(std::move(g));
   }

@@ -60,6 +60,7 @@ planner::GrindPath grind_path_of(const perception::FlashPath& path) {
   gp.normals_C = path.normals_C;
   gp.fin_normal_C = path.fin_normal_C;
   gp.closed = path.closed;
+  gp.fin_height = path.fin_height;
   return gp;
 }
 
@@ -110,6 +111,7 @@ void write_paths(const std::string& dir, const perception::DetectionResult& det)
     paths.push_back({{"region", p.region},
                      {"closed", p.closed},
                      {"length", p.length()},
+                     {"fin_height", p.fin_height},
                      {"fin_normal", {p.fin_normal_C.x(), p.fin_normal_C.y(), p.fin_normal_C.z()}},
                      {"points", pts},
                      {"normals", nrm}});

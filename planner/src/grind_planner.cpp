@@ -494,6 +494,22 @@ void check_param(bool ok, const char* field, const char* expected, double got) {
   if (!ok) throw ArgumentError(strf("GrindParams.%s: expected %s, got %g", field, expected, got));
 }
 
+// Extra axis offsets e of the passes for a fin `height` high [m]: roughing passes of equal
+// radial depths (each ≤ max_depth_of_cut) down to finish_depth above the wall, then the
+// finishing pass at the stock allowance. Unknown height (0): the finishing pass alone.
+std::vector<double> pass_offsets(const GrindParams& P, double height) {
+  std::vector<double> e;
+  const double rough = height - P.finish_depth;
+  if (rough > 1e-9) {
+    const auto n = static_cast<int>(std::ceil(rough / P.max_depth_of_cut - 1e-9));
+    if (n > 100) return std::vector<double>(static_cast<std::size_t>(n) + 1, 0.0);  // caller refuses
+    for (int j = 0; j < n; ++j)
+      e.push_back(P.stock_allowance + P.finish_depth + rough * (n - 1 - j) / n);
+  }
+  e.push_back(P.stock_allowance);
+  return e;
+}
+
 }  // namespace
 
 Pose grind_tool_pose(const Vec3& p, const Vec3& n, const Vec3& t, const Vec3& f, const Vec3& x_ref,
@@ -542,6 +558,10 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   check_param(std::abs(P.tilt) < M_PI / 2, "tilt", "|tilt| < pi/2 [rad]", P.tilt);
   check_param(P.max_depth_of_cut > 0 && std::isfinite(P.max_depth_of_cut), "max_depth_of_cut",
               "> 0 [m]", P.max_depth_of_cut);
+  check_param(P.finish_depth >= 0 && P.finish_depth <= 0.01, "finish_depth", "0..0.01 [m]",
+              P.finish_depth);
+  check_param(P.roughing_feed > 0 && std::isfinite(P.roughing_feed), "roughing_feed", "> 0 [m/s]",
+              P.roughing_feed);
   check_param(P.overrun >= 0 && P.overrun <= 0.05, "overrun", "0..0.05 [m]", P.overrun);
   check_param(P.stock_allowance >= 0 && P.stock_allowance <= 0.005, "stock_allowance",
               "0..0.005 [m]", P.stock_allowance);
@@ -592,9 +612,9 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   // ---- The burr must fit: a path on a wall that curves round its centre (closed, or an open
   // arc of at least 45°: part of a hole seen) is in a hole, and the burr (radius r) cannot
   // follow a hole narrower than r plus a small clearance.
+  double hole_r = 1e300;  // [m] radius of the hole the path runs round (1e300: not a hole)
   if (N0 >= 3) {
     constexpr double kClearance = 2e-4;
-    double hole_r = 1e300;
     if (path.closed) {
       // Centroid weighted by arc length (points may be denser on one side of the loop).
       Vec3 c = Vec3::Zero();
@@ -734,21 +754,26 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     ps.insert(ps.end(), tail.begin(), tail.end());
   }
 
-  // ---- Passes: equal radial depths, the last with the cutter against the wall.
+  // ---- Passes: roughing passes of equal radial depths, then the finishing pass against the
+  // wall. In a hole the burr's axis need not go past the hole's centre (offset hole_r − r).
   GrindResult res;
   res.tool_radius = radius;
-  res.passes =
-      path.fin_height > 0
-          ? std::max(1, static_cast<int>(std::ceil(path.fin_height / P.max_depth_of_cut - 1e-9)))
-          : 1;
+  res.pass_offsets = pass_offsets(P, std::min(path.fin_height, std::max(0.0, hole_r - radius)));
+  res.passes = static_cast<int>(res.pass_offsets.size());
   if (res.passes > 100)
     throw ArgumentError(
         strf("GrindPath.fin_height: expected at most 100 passes of "
              "max_depth_of_cut %g m, got fin_height %g m (%d passes)",
              P.max_depth_of_cut, path.fin_height, res.passes));
-  for (int j = 0; j < res.passes; ++j)
-    res.pass_offsets.push_back(P.stock_allowance +
-                               path.fin_height * (res.passes - 1 - j) / res.passes);
+
+  // In a hole the burr's axis runs on a circle of radius ρ = hole_r − r − e while its contact
+  // with the wall runs on one of radius hole_r − e, faster by their ratio (a 5 mm hole with a
+  // 4 mm burr: 5×). The feed is the contact's, as CAM systems set it on inner arcs: the tool
+  // centre moves at feed · ρ / (hole_r − e) (at least 5 % of it).
+  const auto contact_feed = [&](double feed, double e) {
+    if (hole_r >= 1e299) return feed;
+    return feed * std::clamp((hole_r - radius - e) / (hole_r - e), 0.05, 1.0);
+  };
 
   // ---- The whole motion as one sample sequence: approach, passes joined by links, retract.
   Context C{robot, P, X_BC, f, ps[0].t, radius, length, tip_depth, P.lead, P.tilt, {}, {}};
@@ -810,11 +835,15 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
         g.extra = end.extra - de * static_cast<double>(i) / static_cast<double>(m);
         C.geo.push_back(g);
       }
-      segs.push_back({SampleKind::kLink, pass, first, C.geo.size()});
+      segs.push_back({SampleKind::kLink, pass, first, C.geo.size(),
+                      contact_feed(P.feed, res.pass_offsets[static_cast<std::size_t>(pass)])});
     }
     const std::size_t first = C.geo.size();
     for (std::size_t k = 0; k < ps.size(); ++k) C.geo.push_back(cut_geo(pass, k));
-    segs.push_back({SampleKind::kCut, pass, first, C.geo.size() - 1});
+    const bool roughing = pass + 1 < res.passes;
+    segs.push_back({SampleKind::kCut, pass, first, C.geo.size() - 1,
+                    contact_feed(roughing ? P.roughing_feed : P.feed,
+                                 res.pass_offsets[static_cast<std::size_t>(pass)])});
   }
   if (P.approach_distance > 0) {
     const std::size_t first = C.geo.size() - 1;

@@ -459,6 +459,41 @@ TEST(GrindPlanner, HoleNarrowerThanTheBurrIsRefused) {
   EXPECT_TRUE(plan_grind(robot, X_BC, wide).ok());
 }
 
+TEST(GrindPlanner, PassesInAHoleStopAtItsCentre) {
+  // A ring fin 8 mm high in a hole of radius r + 3.5 mm: past an axis offset of 3.5 mm the
+  // burr's axis would cross the hole's centre, so the passes take 3.5 mm: two roughing passes
+  // of 1.6 mm down to the finishing depth, then the finishing pass.
+  const RobotModel robot = ftest::ft6();
+  const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
+  const double r = robot.tool.radius;
+  GrindParams P;
+  GrindPath ring = hole_circle(r + 3.5e-3, 72);
+  ring.fin_height = 0.008;
+  const GrindResult g = plan_grind(robot, X_BC, ring, P);
+  ASSERT_TRUE(g.ok()) << g.message;
+  ASSERT_EQ(g.passes, 3);
+  EXPECT_NEAR(g.pass_offsets[0], P.stock_allowance + P.finish_depth + 1.6e-3, 1e-12);
+  EXPECT_NEAR(g.pass_offsets[1], P.stock_allowance + P.finish_depth, 1e-12);
+  EXPECT_EQ(g.pass_offsets[2], P.stock_allowance);
+  // The feed is the contact's on the wall: the tool centre, on a circle of radius R − r − e,
+  // moves slower by (R − r − e)/(R − e), and the timed TCP speed along the pass follows it.
+  const double R = r + 3.5e-3;
+  for (const GrindSegment& sg : g.segments) {
+    if (sg.kind != SampleKind::kCut) continue;
+    const double e = g.pass_offsets[static_cast<std::size_t>(sg.pass)];
+    const double base = sg.pass + 1 < g.passes ? P.roughing_feed : P.feed;
+    EXPECT_NEAR(sg.feed, base * (R - r - e) / (R - e), 1e-12) << sg.pass;
+    double vmax = 0;
+    for (std::size_t k = sg.first_step; k <= sg.last_step; ++k)
+      vmax = std::max(vmax, g.trajectory.sdot[k]);
+    EXPECT_NEAR(vmax, sg.feed, 0.02 * sg.feed) << sg.pass;
+  }
+  // The same fin on a straight wall gets the full height in passes of ≤ 2 mm.
+  GrindPath line = wall_line(-0.05, 0.05, 0.005);
+  line.fin_height = 0.008;
+  EXPECT_EQ(plan_grind(robot, X_BC, line, P).passes, 5);
+}
+
 TEST(GrindPlanner, RunOutIsShortenedWhereTheWallCurves) {
   // Half a 30 mm hole as an open path: a straight 2 mm run-out would leave the curved wall by
   // 2²/(2·30) = 0.067 mm, so it is cut to where it stays within 20 µm (about 1.1 mm).
@@ -490,35 +525,41 @@ TEST(GrindPlanner, RunOutIsShortenedWhereTheWallCurves) {
   }
 }
 
-TEST(GrindPlanner, FinHigherThanDepthOfCutGivesPassesEndingAtTheWall) {
+TEST(GrindPlanner, FinHigherThanDepthOfCutGivesRoughingPassesThenAFinishingPass) {
   const RobotModel robot = ftest::ft6();
   const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
   GrindParams P = flush();
   P.max_depth_of_cut = 0.002;
+  P.finish_depth = 0.0003;
   P.overrun = 0;  // pass lengths exactly the line's
   GrindPath path = wall_line(-0.05, 0.05, 0.005);
-  path.fin_height = 3 * P.max_depth_of_cut;
+  path.fin_height = 3 * P.max_depth_of_cut + P.finish_depth;
   const GrindResult r = plan_grind(robot, X_BC, path, P);
   ASSERT_TRUE(r.ok()) << r.message;
-  ASSERT_EQ(r.passes, 3);
-  ASSERT_EQ(r.pass_offsets.size(), 3u);
-  EXPECT_NEAR(r.pass_offsets[0], 0.004, 1e-15);
-  EXPECT_NEAR(r.pass_offsets[1], 0.002, 1e-15);
-  EXPECT_EQ(r.pass_offsets[2], 0.0);
+  // Three roughing passes of 2 mm down to 0.3 mm off the wall, then the finishing pass.
+  ASSERT_EQ(r.passes, 4);
+  ASSERT_EQ(r.pass_offsets.size(), 4u);
+  EXPECT_NEAR(r.pass_offsets[0], 0.0043, 1e-15);
+  EXPECT_NEAR(r.pass_offsets[1], 0.0023, 1e-15);
+  EXPECT_NEAR(r.pass_offsets[2], 0.0003, 1e-15);
+  EXPECT_EQ(r.pass_offsets[3], 0.0);
   const double rad = robot.tool.radius;
-  // approach, plunge, cut 0, link, cut 1, link, cut 2, retract
-  ASSERT_EQ(r.segments.size(), 8u);
-  const SampleKind kinds[8] = {SampleKind::kApproach, SampleKind::kApproach, SampleKind::kCut,
-                               SampleKind::kLink,     SampleKind::kCut,      SampleKind::kLink,
-                               SampleKind::kCut,      SampleKind::kRetract};
+  // approach, plunge, cut 0, link, cut 1, link, cut 2, link, cut 3, retract
+  ASSERT_EQ(r.segments.size(), 10u);
+  const SampleKind kinds[10] = {SampleKind::kApproach, SampleKind::kApproach, SampleKind::kCut,
+                                SampleKind::kLink,     SampleKind::kCut,      SampleKind::kLink,
+                                SampleKind::kCut,      SampleKind::kLink,     SampleKind::kCut,
+                                SampleKind::kRetract};
   double prev_offset = 1;
-  for (int k = 0; k < 8; ++k) {
+  for (int k = 0; k < 10; ++k) {
     const GrindSegment& g = r.segments[static_cast<std::size_t>(k)];
     EXPECT_EQ(g.kind, kinds[k]);
     if (k > 0) {
       EXPECT_EQ(g.first_sample, r.segments[static_cast<std::size_t>(k - 1)].last_sample);
     }
     if (g.kind != SampleKind::kCut) continue;
+    // Roughing passes at the roughing feed, the finishing pass at the cutting feed.
+    EXPECT_EQ(g.feed, g.pass < 3 ? P.roughing_feed : P.feed) << g.pass;
     // Axis offset from the wall decreasing pass by pass, the last at r (flush).
     const double expect = rad + r.pass_offsets[static_cast<std::size_t>(g.pass)];
     EXPECT_LT(expect, prev_offset);
@@ -528,32 +569,37 @@ TEST(GrindPlanner, FinHigherThanDepthOfCutGivesPassesEndingAtTheWall) {
       EXPECT_NEAR(-r.samples[i].X_CT.translation().x(), expect, 1e-12);
       EXPECT_NEAR(r.samples[i].axis_offset, expect, 1e-12);
     }
-    // Open paths alternate direction: pass 1 runs back.
+    // Open paths alternate direction: odd passes run back.
     const double y0 = r.samples[g.first_sample].X_CT.translation().y();
     const double y1 = r.samples[g.last_sample].X_CT.translation().y();
-    EXPECT_NEAR(g.pass == 1 ? y0 - y1 : y1 - y0, 0.1, 1e-9);
+    EXPECT_NEAR(g.pass % 2 == 1 ? y0 - y1 : y1 - y0, 0.1, 1e-9);
   }
-  EXPECT_NEAR(-r.samples[r.segments[6].last_sample].X_CT.translation().x(), rad, 1e-12);
-  // Links: radial step-in at the path end, cutting feed.
-  for (int k : {3, 5}) {
+  EXPECT_NEAR(-r.samples[r.segments[8].last_sample].X_CT.translation().x(), rad, 1e-12);
+  // Links: radial step-in at the path end, cutting feed; the last one by the finishing depth.
+  for (int k : {3, 5, 7}) {
     const GrindSegment& g = r.segments[static_cast<std::size_t>(k)];
     EXPECT_EQ(g.feed, P.feed);
     const Vec3 d =
         r.samples[g.last_sample].X_CT.translation() - r.samples[g.first_sample].X_CT.translation();
-    EXPECT_LT((d - Vec3(P.max_depth_of_cut, 0, 0)).norm(), 1e-12);
+    const double step = k == 7 ? P.finish_depth : P.max_depth_of_cut;
+    EXPECT_LT((d - Vec3(step, 0, 0)).norm(), 1e-12) << k;
   }
-  EXPECT_NEAR(r.cut_length, 3 * 0.1 + 2 * 0.002, 1e-9);
+  EXPECT_NEAR(r.cut_length, 4 * 0.1 + 2 * 0.002 + 0.0003, 1e-9);
   expect_single_branch(robot, r, P.max_joint_jump);
   expect_trajectory_sound(robot, r);
 
   // Unknown fin height: one pass.
   path.fin_height = 0;
   EXPECT_EQ(plan_grind(robot, X_BC, path, P).passes, 1);
-  // Not a whole multiple: equal depths no deeper than the limit.
-  path.fin_height = 0.0045;
+  // A fin no higher than the finishing depth: the finishing pass alone.
+  path.fin_height = 0.0002;
+  EXPECT_EQ(plan_grind(robot, X_BC, path, P).passes, 1);
+  // Not a whole multiple: equal roughing depths no deeper than the limit.
+  path.fin_height = 0.0048;
   const GrindResult r3 = plan_grind(robot, X_BC, path, P);
-  ASSERT_EQ(r3.passes, 3);
-  EXPECT_NEAR(r3.pass_offsets[0], 0.003, 1e-15);
+  ASSERT_EQ(r3.passes, 4);
+  EXPECT_NEAR(r3.pass_offsets[0], 0.0033, 1e-15);
+  EXPECT_NEAR(r3.pass_offsets[1], 0.0018, 1e-15);
 }
 
 TEST(GrindPlanner, LeadAndTiltGeometry) {

@@ -78,6 +78,7 @@ struct FlashPath {
   std::vector<Vec3> normals_C;  ///< outward CAD surface normal at each point
   Vec3 fin_normal_C = Vec3::UnitZ();  ///< the region's fin plane normal
   bool closed = false;          ///< a closed loop (the last point connects to the first)
+  double fin_height = 0;        ///< [m] its region's height off the CAD (FlashRegion::max_height)
   double length() const;        ///< [m] (including the closing segment)
 };
 

@@ -40,7 +40,8 @@ struct GrindPath {
   std::vector<Vec3> normals_C;  ///< outward CAD surface (wall) normal at each point, N, any length
   Vec3 fin_normal_C = Vec3::UnitZ();  ///< fin plane normal, toward the tool's side (e.g. up)
   bool closed = false;                ///< closed loop (flash around a hole)
-  double fin_height = 0;  ///< how far the fin sticks out of the wall [m]; 0: unknown → one pass
+  double fin_height = 0;  ///< how far the fin sticks out of the wall [m] (as detection measured
+                          ///< it); 0: unknown → one pass
 };
 
 /// Options of plan_grind (defaults for a 12 mm burr on steel flash).
@@ -49,7 +50,9 @@ struct GrindParams {
                                 ///< range (the executor clamps its reference 0.01 rad inside)
   double spacing = 0.0005;      ///< arc-length spacing of the samples along the path [m]; the input
                                 ///< points are thinned to at least this spacing first
-  double feed = 0.005;          ///< cutting feed along the tool path (passes and pass links) [m/s]
+  double feed = 0.005;          ///< cutting feed of the finishing pass and pass links [m/s]: the
+                                ///< speed of the burr's contact along the wall (in a hole the tool
+                                ///< centre moves slower by (R − r − e)/(R − e))
                                 ///< (10 mm/s doubled the grinding force and, with the arm's
                                 ///< deflection, gouged 0.56 mm into the hole walls; 5 mm/s 0.09 mm)
   double approach_feed = 0.02;  ///< feed of the approach and retract moves [m/s]
@@ -62,7 +65,14 @@ struct GrindParams {
   double tilt = 0;                  ///< tilt angle (shank away from the wall) [rad]
   /// Axial distance from the fin mid-plane crossing to the tip [m]; unset: tool length / 2.
   std::optional<double> tip_depth;
-  double max_depth_of_cut = 0.002;  ///< largest radial depth of cut per pass [m]
+  double max_depth_of_cut = 0.002;  ///< largest radial depth of cut of a roughing pass [m]
+  /// Radial depth of the last (finishing) pass when the fin height is known [m]: the roughing
+  /// passes take the fin down to this, the last pass cuts it to the wall under a light load,
+  /// so the arm's deflection under the grinding force no longer leaves a layer of flash.
+  double finish_depth = 0.3e-3;
+  /// Feed of the roughing passes [m/s] (each removes at most max_depth_of_cut: at 10 mm/s
+  /// about the removal rate of a 4 mm fin cut in one pass at 5 mm/s).
+  double roughing_feed = 0.01;
   /// Run-out past each end of an open path, straight along its end tangent [m]: at the last
   /// path point the burr touches the wall at one point only, so the flash just beyond it
   /// would stay. Shortened (to whole samples, possibly none) where the wall curves round the
@@ -187,8 +197,9 @@ struct GrindResult {
 };
 
 /// Plans the grinding motion of one path on the casting at X_BC: spline, samples, passes
-/// (fin_height / max_depth_of_cut of them, rounded up, equal depths, the last flush with the
-/// wall), one IK branch chosen over all (branch, base spin) seeds of the first pose — among the
+/// (with a known fin height: roughing passes of equal depths ≤ max_depth_of_cut at the
+/// roughing feed down to finish_depth, then one finishing pass at the cutting feed flush with
+/// the wall; in a hole the passes start no farther from the wall than the hole's centre), one IK branch chosen over all (branch, base spin) seeds of the first pose — among the
 /// seeds that complete, those within 10 % of the best minimum manipulability, then the fewest
 /// re-orientations, then the largest joint-limit margin — re-orientation of bad ranges (spin about
 /// z_T first, then leans of growing size), and time parametrization segment by segment (each
