@@ -123,7 +123,8 @@ void snap_to_circle(FlashPath& path, const Vec3& w) {
 // ordered by angle about the circle from the widest gap on, the other gaps filled along the
 // circle at steps of at most `step` where the CAD wall is (every added point within `fit_tol`
 // of the surface); close_hole_arc then closes the widest gap when the arcs span over half the
-// ring. Returns how many paths were joined into others.
+// ring. An open path on the circle of a closed ring is dropped (the ring grinds it). Returns
+// how many paths were joined into others or dropped.
 int merge_hole_arcs(std::vector<FlashPath>& paths, const MeshBvh& cad_C, double step, double fit_tol) {
   // The points and normals of several paths, back to back.
   const auto gather = [&](const std::vector<std::size_t>& ids, std::vector<Vec3>& pts, std::vector<Vec3>& nrm) {
@@ -211,6 +212,23 @@ int merge_hole_arcs(std::vector<FlashPath>& paths, const MeshBvh& cad_C, double 
     for (std::size_t i = 1; i < g.size(); ++i) drop[g[i]] = 1;
     paths[g.front()] = std::move(merged);
     joined += static_cast<int>(g.size()) - 1;
+  }
+  // An open arc on the circle of a hole whose ring is already closed (another view's region
+  // saw the whole ring) is ground with that ring: a second path over the same wall only adds
+  // a pass whose ends dwell against the finished wall.
+  for (std::size_t k = 0; k < paths.size(); ++k) {
+    if (drop[k] || paths[k].closed || paths[k].points_C.size() < 3) continue;
+    for (std::size_t c = 0; c < paths.size(); ++c) {
+      if (drop[c] || !paths[c].closed || paths[c].points_C.size() < 8) continue;
+      if (std::abs(paths[c].fin_normal_C.dot(paths[k].fin_normal_C)) < std::cos(M_PI / 18)) continue;
+      if (!on_hole(fit_arc(paths[c].points_C, paths[c].fin_normal_C, paths[c].normals_C)) ||
+          !on_hole(joint_fit({c, k})))
+        continue;
+      paths[c].fin_height = std::max(paths[c].fin_height, paths[k].fin_height);
+      drop[k] = 1;
+      ++joined;
+      break;
+    }
   }
   std::size_t out = 0;
   for (std::size_t k = 0; k < paths.size(); ++k)

@@ -4,7 +4,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+#include <filesystem>
 
+#include "flashtwin/core/io.hpp"
 #include "flashtwin/core/mesh_query.hpp"
 #include "flashtwin/perception/flash_detection.hpp"
 #include "flashtwin/pipeline/run.hpp"
@@ -29,7 +32,51 @@ sim::JointTrajectory to_sim(const planner::GrindResult& g, const Pose& X_WB) {
   return tr;
 }
 
+// Binary little-endian PLY of points with one float scalar and an optional uchar flag.
+std::string scalar_ply(const std::vector<Vec3>& pts, const std::vector<float>& value,
+                       const char* value_name, const std::vector<std::uint8_t>& flag,
+                       const char* flag_name) {
+  std::string out = "ply\nformat binary_little_endian 1.0\ncomment flashtwin material map, "
+                    "frame {C}, metres (ground truth)\nelement vertex " +
+                    std::to_string(pts.size()) +
+                    "\nproperty float x\nproperty float y\nproperty float z\nproperty float " +
+                    value_name + "\n";
+  if (flag_name) out += std::string("property uchar ") + flag_name + "\n";
+  out += "end_header\n";
+  const std::size_t row = 16 + (flag_name ? 1 : 0);
+  const std::size_t head = out.size();
+  out.resize(head + row * pts.size());
+  for (std::size_t i = 0; i < pts.size(); ++i) {
+    const float f[4] = {static_cast<float>(pts[i].x()), static_cast<float>(pts[i].y()),
+                        static_cast<float>(pts[i].z()), value[i]};
+    std::memcpy(out.data() + head + i * row, f, 16);  // x86-64: little-endian
+    if (flag_name) out[head + i * row + 16] = static_cast<char>(flag[i]);
+  }
+  return out;
+}
+
 }  // namespace
+
+void write_material_maps(const std::string& dir, const sim::MaterialGrid& grid) {
+  const MeshBvh& cad = grid.nominal();
+  const sim::RemainingFlash rem = sim::split_remaining_flash(grid);
+  std::vector<Vec3> flash = rem.attached;
+  flash.insert(flash.end(), rem.loose.begin(), rem.loose.end());
+  std::vector<float> height(flash.size());
+  std::vector<std::uint8_t> loose(flash.size(), 0);
+  for (std::size_t i = 0; i < flash.size(); ++i) {
+    height[i] = static_cast<float>(cad.closest(flash[i]).distance * 1e3);
+    loose[i] = i >= rem.attached.size();
+  }
+  write_text_file((std::filesystem::path(dir) / "residual_flash.ply").string(),
+                  scalar_ply(flash, height, "height_mm", loose, "loose"));
+  const std::vector<Vec3> gouge = sim::voxel_points(grid, sim::VoxelLabel::kGouge);
+  std::vector<float> depth(gouge.size());
+  for (std::size_t i = 0; i < gouge.size(); ++i)
+    depth[i] = static_cast<float>(cad.closest(gouge[i]).distance * 1e3);
+  write_text_file((std::filesystem::path(dir) / "gouges.ply").string(),
+                  scalar_ply(gouge, depth, "depth_mm", {}, nullptr));
+}
 
 ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
                                const std::vector<PlannedPath>& plans, json& m,

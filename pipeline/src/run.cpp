@@ -498,6 +498,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   m["exit_code"] = out.exit_code;
   if (write) {
     write_text_file((dir / "metrics.json").string(), m.dump(2) + "\n");
+    if (exec_summary.grid) write_material_maps(dir.string(), *exec_summary.grid);
     if (opt.report) {
       progress(opt, "report", 0.95);
       ReportInputs ri{sc, ss, out, planned_paths, exec_summary};

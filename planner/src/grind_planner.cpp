@@ -562,6 +562,8 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
               P.finish_depth);
   check_param(P.roughing_feed > 0 && std::isfinite(P.roughing_feed), "roughing_feed", "> 0 [m/s]",
               P.roughing_feed);
+  check_param(P.lead_clearance >= 0 && P.lead_clearance <= 0.01, "lead_clearance", "0..0.01 [m]",
+              P.lead_clearance);
   check_param(P.overrun >= 0 && P.overrun <= 0.05, "overrun", "0..0.05 [m]", P.overrun);
   check_param(P.stock_allowance >= 0 && P.stock_allowance <= 0.005, "stock_allowance",
               "0..0.005 [m]", P.stock_allowance);
@@ -800,6 +802,28 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   };
   const auto lift_steps =
       static_cast<std::size_t>(std::max(1.0, std::ceil(P.approach_distance / P.spacing - 1e-9)));
+  // Lead-in and lead-out: the approach comes down `clear` off the first pass's wall offset and
+  // steps in to it; the last pass steps off by as much before the retract lifts, so the burr
+  // neither plunges nor lifts along the finished wall (in a hole: at most to its centre).
+  const double clear = std::clamp(
+      std::min(P.lead_clearance, hole_r - radius - res.pass_offsets.front()), 0.0, P.lead_clearance);
+  // Radial move at path sample k of `pass` from offset e0 (the last sample so far) to e1. The
+  // lead-in ends on the pass's first sample, pushed next (`onto_next`); the lead-out pushes
+  // its end.
+  const auto radial = [&](int pass, std::size_t k, SampleKind kind, double e0, double e1,
+                          bool onto_next) {
+    const std::size_t first = C.geo.size() - 1;
+    const auto m =
+        static_cast<std::size_t>(std::max(1.0, std::ceil(std::abs(e1 - e0) / P.spacing - 1e-9)));
+    for (std::size_t i = 1; i + (onto_next ? 1 : 0) <= m; ++i) {
+      Geo g = cut_geo(pass, k);
+      g.kind = kind;
+      g.extra = e0 + (e1 - e0) * static_cast<double>(i) / static_cast<double>(m);
+      C.geo.push_back(g);
+    }
+    segs.push_back({kind, pass, first, C.geo.size() - (onto_next ? 0 : 1),
+                    contact_feed(P.feed, std::min(e0, e1))});
+  };
   if (P.approach_distance > 0) {
     // The last stretch of the approach plunges the cutter through the fin (its tip crosses the
     // fin plane at lift = tip depth): that part runs at the plunge feed, the rest in the air at
@@ -810,14 +834,27 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
       Geo g = cut_geo(0, 0);
       g.kind = SampleKind::kApproach;
       g.lift = P.approach_distance * (1 - static_cast<double>(i) / lift_steps);
+      g.extra += clear;
       if (split == 0 && g.lift <= plunge_height) split = i;
       C.geo.push_back(g);
     }
+    if (clear > 0) {
+      Geo g = cut_geo(0, 0);
+      g.kind = SampleKind::kApproach;
+      g.extra += clear;
+      C.geo.push_back(g);  // down at the fin plane, `clear` off the wall offset
+    }
+    // The descent ends on the first cut sample (pushed next) or, with a lead-in, down here.
+    const std::size_t down = clear > 0 ? C.geo.size() - 1 : C.geo.size();
     if (split == 0 || split + 1 >= lift_steps) {
-      segs.push_back({SampleKind::kApproach, 0, 0, lift_steps, P.plunge_feed});
+      segs.push_back({SampleKind::kApproach, 0, 0, down, P.plunge_feed});
     } else {
       segs.push_back({SampleKind::kApproach, 0, 0, split});
-      segs.push_back({SampleKind::kApproach, 0, split, lift_steps, P.plunge_feed});
+      segs.push_back({SampleKind::kApproach, 0, split, down, P.plunge_feed});
+    }
+    if (clear > 0) {
+      const double e0 = res.pass_offsets.front();
+      radial(0, 0, SampleKind::kApproach, e0 + clear, e0, true);
     }
   }
   // Neighbouring segments share their junction sample: the approach ends on the first cut
@@ -846,6 +883,11 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
                                  res.pass_offsets[static_cast<std::size_t>(pass)])});
   }
   if (P.approach_distance > 0) {
+    if (clear > 0) {
+      const Geo last = C.geo.back();
+      radial(last.pass, ps.size() - 1, SampleKind::kRetract, last.extra, last.extra + clear,
+             false);
+    }
     const std::size_t first = C.geo.size() - 1;
     const Geo end = C.geo.back();
     for (std::size_t i = 1; i <= lift_steps; ++i) {

@@ -54,10 +54,12 @@ GrindPath hole_circle(double R, int n) {
   return p;
 }
 
-// Parameters with the burr flush against the wall (no stock allowance): exact geometry.
+// Parameters with the burr flush against the wall (no stock allowance) and approach and
+// retract straight along the fin normal at the wall offset (no lead-in): exact geometry.
 GrindParams flush() {
   GrindParams p;
   p.stock_allowance = 0;
+  p.lead_clearance = 0;
   return p;
 }
 
@@ -423,14 +425,17 @@ TEST(GrindPlanner, PathPartlyOutOfReachFailsAtFirstBadIndex) {
 }
 
 TEST(GrindPlanner, StockAllowanceKeepsTheBurrOffTheWall) {
-  // By default the last pass leaves 30 µm of stock: the burr axis is r + 0.03 mm off the wall.
+  // By default the last pass runs flush against the wall; a stock allowance of 30 µm puts the
+  // burr axis r + 0.03 mm off it.
   const RobotModel robot = ftest::ft6();
+  EXPECT_EQ(GrindParams{}.stock_allowance, 0.0);
+  GrindParams P;
+  P.stock_allowance = 0.03e-3;
   const GrindResult r =
-      plan_grind(robot, translation(Vec3(0.7, 0, -0.15)), wall_line(-0.02, 0.02, 0.005));
+      plan_grind(robot, translation(Vec3(0.7, 0, -0.15)), wall_line(-0.02, 0.02, 0.005), P);
   ASSERT_TRUE(r.ok()) << r.message;
   ASSERT_EQ(r.pass_offsets.size(), 1u);
-  EXPECT_DOUBLE_EQ(r.pass_offsets[0], GrindParams{}.stock_allowance);
-  EXPECT_DOUBLE_EQ(GrindParams{}.stock_allowance, 0.03e-3);
+  EXPECT_DOUBLE_EQ(r.pass_offsets[0], 0.03e-3);
   for (const auto& s : r.samples)
     if (s.kind == SampleKind::kCut) {
       EXPECT_NEAR(s.X_CT.translation().x(), -(robot.tool.radius + 0.03e-3), 1e-12);
@@ -457,6 +462,45 @@ TEST(GrindPlanner, HoleNarrowerThanTheBurrIsRefused) {
   wide.points_C.resize(21);
   wide.normals_C.resize(21);
   EXPECT_TRUE(plan_grind(robot, X_BC, wide).ok());
+}
+
+TEST(GrindPlanner, LeadInAndOutKeepTheBurrOffTheWallWhileItPlungesAndLifts) {
+  const RobotModel robot = ftest::ft6();
+  const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
+  GrindParams P = flush();
+  P.lead_clearance = 0.5e-3;
+  const GrindResult r = plan_grind(robot, X_BC, wall_line(-0.05, 0.05, 0.005), P);
+  ASSERT_TRUE(r.ok()) << r.message;
+  const double rad = robot.tool.radius;
+  // approach (air), plunge, lead-in, pass, lead-out, lift: joined at shared samples.
+  ASSERT_EQ(r.segments.size(), 6u);
+  const SampleKind kinds[6] = {SampleKind::kApproach, SampleKind::kApproach, SampleKind::kApproach,
+                               SampleKind::kCut,      SampleKind::kRetract,  SampleKind::kRetract};
+  for (std::size_t k = 0; k < 6; ++k) {
+    EXPECT_EQ(r.segments[k].kind, kinds[k]) << k;
+    if (k > 0) EXPECT_EQ(r.segments[k - 1].last_sample, r.segments[k].first_sample) << k;
+  }
+  EXPECT_EQ(r.segments[2].feed, P.feed);
+  EXPECT_EQ(r.segments[4].feed, P.feed);
+  // Descent and lift 0.5 mm off the wall offset (the wall is x = 0, the tool on x < 0).
+  for (std::size_t i = 0; i <= r.segments[1].last_sample; ++i)
+    EXPECT_NEAR(-r.samples[i].X_CT.translation().x(), rad + 0.5e-3, 1e-12) << i;
+  for (std::size_t i = r.segments[5].first_sample; i < r.samples.size(); ++i)
+    EXPECT_NEAR(-r.samples[i].X_CT.translation().x(), rad + 0.5e-3, 1e-12) << i;
+  // The lead-in and lead-out are radial: along the wall normal at the pass's ends.
+  const Vec3 in = r.samples[r.segments[2].last_sample].X_CT.translation() -
+                  r.samples[r.segments[2].first_sample].X_CT.translation();
+  EXPECT_LT((in - Vec3(0.5e-3, 0, 0)).norm(), 1e-12);
+  const Vec3 out = r.samples[r.segments[4].last_sample].X_CT.translation() -
+                   r.samples[r.segments[4].first_sample].X_CT.translation();
+  EXPECT_LT((out + Vec3(0.5e-3, 0, 0)).norm(), 1e-12);
+  for (std::size_t i = r.segments[3].first_sample; i <= r.segments[3].last_sample; ++i)
+    EXPECT_NEAR(-r.samples[i].X_CT.translation().x(), rad, 1e-12) << i;
+  expect_trajectory_sound(robot, r);
+  // In a hole 0.3 mm wider than the burr the lead-in takes what room there is.
+  const GrindResult h = plan_grind(robot, X_BC, hole_circle(rad + 0.3e-3, 72), P);
+  ASSERT_TRUE(h.ok()) << h.message;
+  EXPECT_NEAR(h.samples.front().axis_offset, rad + 0.3e-3, 1e-12);
 }
 
 TEST(GrindPlanner, PassesInAHoleStopAtItsCentre) {

@@ -63,4 +63,11 @@ ExecutionSummary execute_plans(const Scenario& scenario, const ScenarioScan& sca
 void rescan_after(const Scenario& scenario, const ScenarioScan& scan, const Pose& X_CM_est,
                   ExecutionSummary& summary, nlohmann::ordered_json& m);
 
+/// Ground truth maps of the material after grinding, for review in a point viewer: writes
+/// DIR/residual_flash.ply (remaining flash voxel centres, {C}, m; `height_mm` above the CAD,
+/// `loose` 1 for chips cut loose) and DIR/gouges.ply (removed body voxel centres; `depth_mm`
+/// below the CAD), binary little-endian PLY.
+/// @throws IoError when a file cannot be written.
+void write_material_maps(const std::string& dir, const sim::MaterialGrid& grid);
+
 }  // namespace flashtwin::pipeline

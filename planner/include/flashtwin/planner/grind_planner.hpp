@@ -61,6 +61,10 @@ struct GrindParams {
   /// whole cutter cross-section of fin per millimetre.
   double plunge_feed = 0.003;
   double approach_distance = 0.03;  ///< approach/retract height along the fin normal [m]
+  /// Lead-in/lead-out [m]: the approach comes down this far off the first pass's wall offset
+  /// and steps in radially; the last pass steps off as far before the retract, so the burr
+  /// never plunges or lifts along the wall it grinds (in a hole at most to the hole's centre).
+  double lead_clearance = 0.5e-3;
   double lead = 0;                  ///< lead angle (shank toward the travel direction) [rad]
   double tilt = 0;                  ///< tilt angle (shank away from the wall) [rad]
   /// Axial distance from the fin mid-plane crossing to the tip [m]; unset: tool length / 2.
@@ -79,8 +83,11 @@ struct GrindParams {
   /// burr near the end, so the straight run-out cuts at most 20 µm into it.
   double overrun = 0.002;
   /// Radial stock left on the wall by the last pass [m]: the burr runs this far off the CAD
-  /// wall, so the arm's deflection and the wall's tessellation do not cut into the casting.
-  double stock_allowance = 0.03e-3;
+  /// wall. 0 by default: with the light finishing pass and the lead-in/out the arm's deflection
+  /// no longer cuts into the wall (default scenario, seeds 5001–5050: deepest gouge p50 0.06 mm,
+  /// p90 0.08 mm), while 0.03 mm left the flash's first 0.1 mm voxel layer standing on the
+  /// outer walls (removed p50 99.2 %, 1 in 3 castings under 99 %).
+  double stock_allowance = 0;
   /// Manipulability |det J| below which a sample counts as near-singular [-] (the FT6 reaches
   /// about 0.12 in comfortable poses).
   double manipulability_threshold = 0.01;
@@ -102,11 +109,13 @@ struct GrindParams {
 /// What a sample belongs to.
 enum class SampleKind {
   kApproach,  ///< straight move down along the fin normal to the start of the first pass (the
-              ///< last stretch, through the fin, as its own segment at the plunge feed)
+              ///< last stretch, through the fin, as its own segment at the plunge feed), then
+              ///< the lead-in: a radial step to the wall offset at the cutting feed
   kCut,       ///< a pass along the path
   kLink,      ///< radial step-in between passes at the same path point (cutting feed); open
               ///< paths alternate direction pass by pass, closed ones restart at the seam
-  kRetract,   ///< straight move up along the fin normal from the end of the last pass
+  kRetract,   ///< lead-out (a radial step off the wall at the cutting feed), then a straight
+              ///< move up along the fin normal from the end of the last pass
 };
 
 /// One planned sample (IK node) of the motion.
