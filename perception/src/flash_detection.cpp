@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <numeric>
 #include <queue>
 #include <sstream>
@@ -96,7 +97,12 @@ void orient_path(FlashPath& path) {
   }
 }
 
-int close_hole_arc(FlashPath& path, const MeshBvh& cad_C, const Vec3& w, double step, double fit_tol);
+// Shortest arc of a hole's ring that is closed into the whole ring [rad] (the planner treats an
+// open arc of 45° or more on an inward-facing wall as a hole too).
+constexpr double kMinHoleArc = M_PI / 4;
+
+int close_hole_arc(FlashPath& path, const MeshBvh& cad_C, const Vec3& w, double step,
+                   double fit_tol, double min_swept = M_PI);
 
 // A closed hole loop onto its fitted circle: each point keeps its angle, its radius becomes the
 // circle's and its height along `w` a moving average over ±3 points. The burr's centre runs on
@@ -123,8 +129,9 @@ void snap_to_circle(FlashPath& path, const Vec3& w) {
 // ordered by angle about the circle from the widest gap on, the other gaps filled along the
 // circle at steps of at most `step` where the CAD wall is (every added point within `fit_tol`
 // of the surface); close_hole_arc then closes the widest gap when the arcs span over half the
-// ring. An open path on the circle of a closed ring is dropped (the ring grinds it). Returns
-// how many paths were joined into others or dropped.
+// ring. Then an open path on the circle of a closed ring is dropped (the ring grinds it), and
+// one of at least kMinHoleArc on a hole wall is closed. Returns how many paths were joined
+// into others or dropped.
 int merge_hole_arcs(std::vector<FlashPath>& paths, const MeshBvh& cad_C, double step, double fit_tol) {
   // The points and normals of several paths, back to back.
   const auto gather = [&](const std::vector<std::size_t>& ids, std::vector<Vec3>& pts, std::vector<Vec3>& nrm) {
@@ -213,11 +220,11 @@ int merge_hole_arcs(std::vector<FlashPath>& paths, const MeshBvh& cad_C, double 
     paths[g.front()] = std::move(merged);
     joined += static_cast<int>(g.size()) - 1;
   }
-  // An open arc on the circle of a hole whose ring is already closed (another view's region
-  // saw the whole ring) is ground with that ring: a second path over the same wall only adds
-  // a pass whose ends dwell against the finished wall.
-  for (std::size_t k = 0; k < paths.size(); ++k) {
-    if (drop[k] || paths[k].closed || paths[k].points_C.size() < 3) continue;
+  // The open arcs left: one on the circle of a hole whose ring is already closed (another
+  // view's region saw the whole ring, or an arc closed before it) is ground with that ring (a
+  // second path over the same wall only adds a pass whose ends dwell against the finished
+  // wall); any other arc of at least kMinHoleArc on a hole wall is closed into its ring.
+  const auto on_a_ring = [&](std::size_t k) {
     for (std::size_t c = 0; c < paths.size(); ++c) {
       if (drop[c] || !paths[c].closed || paths[c].points_C.size() < 8) continue;
       if (std::abs(paths[c].fin_normal_C.dot(paths[k].fin_normal_C)) < std::cos(M_PI / 18)) continue;
@@ -225,9 +232,17 @@ int merge_hole_arcs(std::vector<FlashPath>& paths, const MeshBvh& cad_C, double 
           !on_hole(joint_fit({c, k})))
         continue;
       paths[c].fin_height = std::max(paths[c].fin_height, paths[k].fin_height);
+      return true;
+    }
+    return false;
+  };
+  for (std::size_t k = 0; k < paths.size(); ++k) {
+    if (drop[k] || paths[k].closed || paths[k].points_C.size() < 3) continue;
+    if (on_a_ring(k)) {
       drop[k] = 1;
       ++joined;
-      break;
+    } else {
+      close_hole_arc(paths[k], cad_C, paths[k].fin_normal_C, step, fit_tol, kMinHoleArc);
     }
   }
   std::size_t out = 0;
@@ -241,12 +256,13 @@ int merge_hole_arcs(std::vector<FlashPath>& paths, const MeshBvh& cad_C, double 
 }
 
 // A hole's flash is a ring, so its root is a closed loop even where part of it was not seen.
-// An open path that runs more than half way round a circle (in the plane across the fin
+// An open path that runs at least `min_swept` round a circle (in the plane across the fin
 // normal `w`, fitted within `fit_tol`) whose CAD normals point at the circle's centre (a hole
-// wall, not an outer contour) is closed along that circle, at steps of `step`, where the CAD
-// wall is there (every added point within `fit_tol` of the surface). Returns the points added.
+// wall, not an outer contour) is closed along that circle (refined on the CAD wall), at steps
+// of `step`, where the CAD wall is there (every added point within `fit_tol` of the surface,
+// then moved onto it). Returns the points added.
 int close_hole_arc(FlashPath& path, const MeshBvh& cad_C, const Vec3& w, double step,
-                   double fit_tol) {
+                   double fit_tol, double min_swept) {
   const auto& P = path.points_C;
   const std::size_t n = P.size();
   if (n < 8) return 0;
@@ -256,9 +272,32 @@ int close_hole_arc(FlashPath& path, const MeshBvh& cad_C, const Vec3& w, double 
     if (arc.rms <= fit_tol && arc.facing >= 0.8) snap_to_circle(path, w);
     return 0;
   }
-  if (arc.rms > fit_tol || arc.facing < 0.8 || std::abs(arc.swept) < M_PI ||
+  if (arc.rms > fit_tol || arc.facing < 0.8 || std::abs(arc.swept) < min_swept ||
       std::abs(arc.swept) > 2 * M_PI)
     return 0;
+  // A short arc's circle is uncertain: refine it on the CAD wall. Points all round it are
+  // projected onto the CAD (within 1 mm) and the circle refitted on them and the seen points,
+  // twice; a hole wall holds them all, anything else (a pocket's fillet) fails the checks below.
+  ArcFit c = arc;
+  {
+    double hm = 0;
+    for (const auto& q : P) hm += w.dot(q);
+    hm /= static_cast<double>(n);
+    for (int it = 0; it < 2; ++it) {
+      std::vector<Vec3> pts = P, nrm = path.normals_C;
+      for (int j = 0; j < 36; ++j) {
+        const auto cp = cad_C.closest(c.point(2 * M_PI * j / 36, hm), 1e-3);
+        if (cp.triangle < 0) return 0;
+        pts.push_back(cp.point);
+        nrm.push_back(cad_C.mesh().triangle_normal(static_cast<std::size_t>(cp.triangle)));
+      }
+      c = fit_arc(pts, w, nrm);
+      if (!c.ok || c.facing < 0.8 || c.rms > fit_tol) return 0;
+    }
+  }
+  const auto angle_of = [&](const Vec3& q) {
+    return std::atan2(c.v.dot(q) - c.cv, c.u.dot(q) - c.cu);
+  };
   const double h0 = w.dot(P.front()), h1 = w.dot(P.back());
   const double missing = 2 * M_PI - std::abs(arc.swept);
   // Added points as far apart as the seen ones (at most `step`): an even density keeps the
@@ -266,16 +305,16 @@ int close_hole_arc(FlashPath& path, const MeshBvh& cad_C, const Vec3& w, double 
   double seen = 0;
   for (std::size_t i = 1; i < n; ++i) seen += (P[i] - P[i - 1]).norm();
   const double pitch = std::max(1e-5, std::min(step, seen / static_cast<double>(n - 1)));
-  const int k = static_cast<int>(std::floor(missing * arc.radius / pitch));
+  const int k = static_cast<int>(std::floor(missing * c.radius / pitch));
   if (k < 2) return 0;
   const double dir = arc.swept > 0 ? 1 : -1;
   std::vector<Vec3> add_p, add_n;
   for (int j = 1; j < k; ++j) {
     const double f = static_cast<double>(j) / k;
-    const Vec3 q = arc.point(arc.angle.back() + dir * missing * f, h1 + f * (h0 - h1));
+    const Vec3 q = c.point(angle_of(P.back()) + dir * missing * f, h1 + f * (h0 - h1));
     const auto cp = cad_C.closest(q, 4 * fit_tol);
     if (cp.triangle < 0 || cp.distance > fit_tol) return 0;
-    add_p.push_back(q);
+    add_p.push_back(cp.point);  // on the wall itself
     add_n.push_back(cad_C.mesh().triangle_normal(static_cast<std::size_t>(cp.triangle)));
   }
   path.points_C.insert(path.points_C.end(), add_p.begin(), add_p.end());
@@ -684,7 +723,8 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
     // ... and rise clearly off it (noise tails and mixed pixels just past the threshold,
     // scattered over a face, would otherwise join up).
     const double rise = std::max(0.5e-3, 4 * res.threshold);
-    for (auto& cl : clusters) {
+    // A fragment: a small cluster (≥ 5 points) that reaches the casting and rises off it.
+    const auto fragment = [&](const std::vector<std::uint32_t>& cl) {
       bool touches = false, rises = false;
       if (cl.size() < small && cl.size() >= 5)
         for (auto v : cl) {
@@ -692,7 +732,10 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
           touches = touches || dv < reach;
           rises = rises || dv > rise;
         }
-      if (touches && rises) frag.insert(frag.end(), cl.begin(), cl.end());
+      return touches && rises;
+    };
+    for (auto& cl : clusters) {
+      if (fragment(cl)) frag.insert(frag.end(), cl.begin(), cl.end());
       else kept.push_back(std::move(cl));
     }
     if (!frag.empty()) {
@@ -723,6 +766,45 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
                     frag.size(), P.fragment_merge * tol * 1e3, merged, small);
     }
     clusters = std::move(kept);
+    // A fragment still too small to be a region on its own (one scan line along a fin's root
+    // where the other views saw only the fin's outer part) joins the region it lies within
+    // fragment_merge × tol of: without it the root there has no boundary points and the
+    // grinding line breaks off.
+    std::vector<std::uint32_t> rp;  // points of the regions (indices into live)
+    std::vector<std::size_t> rk;    // their cluster
+    for (std::size_t k = 0; k < clusters.size(); ++k)
+      if (clusters[k].size() >= static_cast<std::size_t>(P.min_region_points))
+        for (auto v : clusters[k]) {
+          rp.push_back(v);
+          rk.push_back(k);
+        }
+    if (!rp.empty()) {
+      std::vector<Eigen::Vector3f> rf(rp.size());
+      for (std::size_t i = 0; i < rp.size(); ++i) rf[i] = lf[rp[i]];
+      detail::KdTree rtree(rf);
+      std::vector<std::pair<std::uint32_t, float>> nb;
+      std::size_t joined = 0;
+      for (std::size_t k = 0; k < clusters.size(); ++k) {
+        auto& cl = clusters[k];
+        if (cl.size() >= static_cast<std::size_t>(P.min_region_points) || !fragment(cl)) continue;
+        std::size_t to = clusters.size();
+        float best = std::numeric_limits<float>::max();
+        for (auto v : cl) {
+          rtree.radius(lf[v], static_cast<float>(P.fragment_merge * tol), nb);
+          for (const auto& [j, d2] : nb)
+            if (d2 < best) {
+              best = d2;
+              to = rk[j];
+            }
+        }
+        if (to == clusters.size()) continue;
+        clusters[to].insert(clusters[to].end(), cl.begin(), cl.end());
+        joined += cl.size();
+        cl.clear();
+      }
+      if (joined > 0)
+        spdlog::debug("detect: {} points of small fragments joined the regions next to them", joined);
+    }
   }
 
   const double band = P.inner_band > 0 ? P.inner_band : 1.5 * spacing;

@@ -803,10 +803,14 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   const auto lift_steps =
       static_cast<std::size_t>(std::max(1.0, std::ceil(P.approach_distance / P.spacing - 1e-9)));
   // Lead-in and lead-out: the approach comes down `clear` off the first pass's wall offset and
-  // steps in to it; the last pass steps off by as much before the retract lifts, so the burr
-  // neither plunges nor lifts along the finished wall (in a hole: at most to its centre).
-  const double clear = std::clamp(
-      std::min(P.lead_clearance, hole_r - radius - res.pass_offsets.front()), 0.0, P.lead_clearance);
+  // steps in to it; the last pass steps off by `clear_out` before the retract lifts, so the
+  // burr neither plunges nor lifts along the finished wall (in a hole: each at most to its
+  // centre; a first pass that already takes all of a small hole's room needs no lead-in).
+  const auto clearance = [&](double e) {
+    return std::clamp(std::min(P.lead_clearance, hole_r - radius - e), 0.0, P.lead_clearance);
+  };
+  const double clear = clearance(res.pass_offsets.front());
+  const double clear_out = clearance(res.pass_offsets.back());
   // Radial move at path sample k of `pass` from offset e0 (the last sample so far) to e1. The
   // lead-in ends on the pass's first sample, pushed next (`onto_next`); the lead-out pushes
   // its end.
@@ -883,9 +887,9 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
                                  res.pass_offsets[static_cast<std::size_t>(pass)])});
   }
   if (P.approach_distance > 0) {
-    if (clear > 0) {
+    if (clear_out > 0) {
       const Geo last = C.geo.back();
-      radial(last.pass, ps.size() - 1, SampleKind::kRetract, last.extra, last.extra + clear,
+      radial(last.pass, ps.size() - 1, SampleKind::kRetract, last.extra, last.extra + clear_out,
              false);
     }
     const std::size_t first = C.geo.size() - 1;

@@ -283,6 +283,24 @@ TEST(FlashDetection, PartlySeenHoleRingIsClosedAlongItsCircle) {
   expect_loop_on_wall(loop, R);
 }
 
+TEST(FlashDetection, HoleRingSeenOverAQuarterIsClosedOnTheWall) {
+  // Only 90 degrees of the ring seen (one view looking into the hole): the short arc's circle,
+  // refined on the CAD wall, closes the loop on the wall all the way round.
+  const double R = 0.006;
+  const RoundCase rc = round_wall_with_ring(R, true, {{90, 360}});
+  const MeshBvh cad(rc.cad);
+  DetectionParams off;
+  off.close_holes = false;
+  const auto r_off = detect_flash(to_scanner(rc.scan_C), cad, kX_CM, off);
+  ASSERT_EQ(r_off.paths.size(), 1u) << r_off.message;
+  EXPECT_LT(r_off.paths[0].length(), 0.3 * 2 * M_PI * R);
+  const auto r_on = detect_flash(to_scanner(rc.scan_C), cad, kX_CM);
+  ASSERT_EQ(r_on.paths.size(), 1u) << r_on.message;
+  EXPECT_TRUE(r_on.paths[0].closed);
+  EXPECT_NEAR(r_on.paths[0].length(), 2 * M_PI * R, 0.03 * 2 * M_PI * R);
+  expect_loop_on_wall(r_on.paths[0], R);
+}
+
 TEST(FlashDetection, HoleRingSeenInTwoArcsIsOneLoopOnItsCircle) {
   // The ring seen in two arcs (as two views see a hole from either side), unseen over 60-120
   // and 200-260 degrees: two open paths without the hole step, one closed loop on the circle

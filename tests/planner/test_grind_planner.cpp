@@ -501,6 +501,18 @@ TEST(GrindPlanner, LeadInAndOutKeepTheBurrOffTheWallWhileItPlungesAndLifts) {
   const GrindResult h = plan_grind(robot, X_BC, hole_circle(rad + 0.3e-3, 72), P);
   ASSERT_TRUE(h.ok()) << h.message;
   EXPECT_NEAR(h.samples.front().axis_offset, rad + 0.3e-3, 1e-12);
+  // A 4 mm ring fin in a hole 0.4 mm wider than the burr: the roughing pass runs 0.3 mm off
+  // the wall (the finishing depth), leaving 0.1 mm for the lead-in; the finishing pass runs
+  // flush, and the lead-out takes the whole 0.4 mm before the retract lifts.
+  GrindPath ring = hole_circle(rad + 0.4e-3, 72);
+  ring.fin_height = 0.004;
+  const GrindResult f = plan_grind(robot, X_BC, ring, P);
+  ASSERT_TRUE(f.ok()) << f.message;
+  ASSERT_EQ(f.passes, 2);
+  EXPECT_NEAR(f.samples.front().axis_offset, rad + 0.4e-3, 1e-12);
+  EXPECT_EQ(f.segments.back().kind, SampleKind::kRetract);
+  for (std::size_t i = f.segments.back().first_sample; i < f.samples.size(); ++i)
+    EXPECT_NEAR(f.samples[i].axis_offset, rad + 0.4e-3, 1e-12) << i;
 }
 
 TEST(GrindPlanner, PassesInAHoleStopAtItsCentre) {

@@ -51,9 +51,9 @@ struct DetectionParams {
                                     ///< max(4 × path_voxel, 4 × spacing across)
   double min_path_length = 2e-3;    ///< [m] shorter pieces of grinding line are dropped
   int smoothing = 3;                ///< moving-average half window along polylines [points]
-  /// A hole's flash is a ring: an open path running more than half way round a hole wall
-  /// (circle fit within max(0.15 mm, 3σ), CAD normals towards its centre) is closed along
-  /// that circle where the CAD wall is there.
+  /// A hole's flash is a ring: an open path running at least 45° round a hole wall (circle
+  /// fit within max(0.15 mm, 3σ), CAD normals towards its centre) is closed along that circle
+  /// (refined on the CAD wall) where the CAD wall is there.
   bool close_holes = true;
   bool mid_plane = true;            ///< shift the path from the fin's visible face to its
                                     ///< mid-plane (half the thickness seen at the fin's edge)
