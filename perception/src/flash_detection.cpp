@@ -107,8 +107,10 @@ int close_hole_arc(FlashPath& path, const MeshBvh& cad_C, const Vec3& w, double 
 // A closed hole loop onto its fitted circle: each point keeps its angle, its radius becomes the
 // circle's and its height along `w` a moving average over ±3 points. The burr's centre runs on
 // a circle only a few millimetres across, where a tenth of a millimetre of scatter in the root
-// points becomes a zig-zag that plunges the burr in and out of the fin.
-void snap_to_circle(FlashPath& path, const Vec3& w) {
+// points becomes a zig-zag that plunges the burr in and out of the fin. Then each point goes
+// onto the CAD wall itself (its closest point, when within `fit_tol`), with that face's
+// normal: a fitted circle off by a tenth somewhere is a tenth of gouge there.
+void snap_to_circle(FlashPath& path, const Vec3& w, const MeshBvh& cad_C, double fit_tol) {
   auto& P = path.points_C;
   const int n = static_cast<int>(P.size());
   if (!path.closed || n < 8) return;
@@ -119,6 +121,12 @@ void snap_to_circle(FlashPath& path, const Vec3& w) {
     double h = 0;
     for (int k = -3; k <= 3; ++k) h += arc.w.dot(P[static_cast<std::size_t>(((i + k) % n + n) % n)]);
     out[static_cast<std::size_t>(i)] = arc.point(arc.angle[static_cast<std::size_t>(i)], h / 7);
+    const auto cp = cad_C.closest(out[static_cast<std::size_t>(i)], fit_tol);
+    if (cp.triangle >= 0) {
+      out[static_cast<std::size_t>(i)] = cp.point;
+      path.normals_C[static_cast<std::size_t>(i)] =
+          cad_C.mesh().triangle_normal(static_cast<std::size_t>(cp.triangle));
+    }
   }
   P = std::move(out);
 }
@@ -269,7 +277,7 @@ int close_hole_arc(FlashPath& path, const MeshBvh& cad_C, const Vec3& w, double 
   const ArcFit arc = fit_arc(P, w, path.normals_C);
   if (!arc.ok || arc.radius < 1e-3 || arc.radius > 0.1) return 0;
   if (path.closed) {  // a ring seen whole: only onto its circle
-    if (arc.rms <= fit_tol && arc.facing >= 0.8) snap_to_circle(path, w);
+    if (arc.rms <= fit_tol && arc.facing >= 0.8) snap_to_circle(path, w, cad_C, fit_tol);
     return 0;
   }
   if (arc.rms > fit_tol || arc.facing < 0.8 || std::abs(arc.swept) < min_swept ||
@@ -320,7 +328,7 @@ int close_hole_arc(FlashPath& path, const MeshBvh& cad_C, const Vec3& w, double 
   path.points_C.insert(path.points_C.end(), add_p.begin(), add_p.end());
   path.normals_C.insert(path.normals_C.end(), add_n.begin(), add_n.end());
   path.closed = true;
-  snap_to_circle(path, w);
+  snap_to_circle(path, w, cad_C, fit_tol);
   return static_cast<int>(add_p.size());
 }
 
