@@ -3,6 +3,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <chrono>
+#include <deque>
 #include <cmath>
 #include <limits>
 #include <numeric>
@@ -774,44 +775,73 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
                     frag.size(), P.fragment_merge * tol * 1e3, merged, small);
     }
     clusters = std::move(kept);
-    // A fragment still too small to be a region on its own (one scan line along a fin's root
-    // where the other views saw only the fin's outer part) joins the region it lies within
-    // fragment_merge × tol of: without it the root there has no boundary points and the
-    // grinding line breaks off.
-    std::vector<std::uint32_t> rp;  // points of the regions (indices into live)
-    std::vector<std::size_t> rk;    // their cluster
-    for (std::size_t k = 0; k < clusters.size(); ++k)
-      if (clusters[k].size() >= static_cast<std::size_t>(P.min_region_points))
-        for (auto v : clusters[k]) {
-          rp.push_back(v);
-          rk.push_back(k);
-        }
-    if (!rp.empty()) {
-      std::vector<Eigen::Vector3f> rf(rp.size());
-      for (std::size_t i = 0; i < rp.size(); ++i) rf[i] = lf[rp[i]];
-      detail::KdTree rtree(rf);
+    // Small clusters that rise off the casting (single scan lines along a fin's root, or across
+    // its outer part where a wall hid the rest from every view) join the region they reach
+    // through each other within fragment_merge × tol: without them the root there has no
+    // boundary points and the grinding line breaks off. A breadth-first search from the
+    // regions (≥ small points) hands each reached cluster to the region it was reached from.
+    std::vector<char> cand_cl(clusters.size(), 0);
+    std::vector<std::uint32_t> cp;  // points of the candidate clusters (indices into live)
+    std::vector<std::size_t> ck;    // their cluster
+    for (std::size_t k = 0; k < clusters.size(); ++k) {
+      const auto& cl = clusters[k];
+      if (cl.size() >= small || cl.size() < 5) continue;
+      bool rises = false;
+      for (auto v : cl) rises = rises || dist[cand[live[v]]] > rise;
+      if (!rises) continue;
+      cand_cl[k] = 1;
+      for (auto v : cl) {
+        cp.push_back(v);
+        ck.push_back(k);
+      }
+    }
+    if (!cp.empty()) {
+      std::vector<Eigen::Vector3f> cfp(cp.size());
+      for (std::size_t i = 0; i < cp.size(); ++i) cfp[i] = lf[cp[i]];
+      detail::KdTree ctree(cfp);
       std::vector<std::pair<std::uint32_t, float>> nb;
+      std::vector<std::size_t> owner(clusters.size(), clusters.size());
+      std::vector<Plane> plane(clusters.size());
+      std::deque<std::size_t> queue;
+      for (std::size_t k = 0; k < clusters.size(); ++k)
+        if (clusters[k].size() >= small) {
+          owner[k] = k;
+          queue.push_back(k);
+          std::vector<Vec3> pts;
+          for (auto v : clusters[k]) pts.push_back(pc[cand[live[v]]]);
+          plane[k] = fit_plane(pts);
+        }
+      // Only clusters in the region's fin plane join it (within the thickest flash, 1.5 mm):
+      // clutter off the part (a fixture's edge) does not.
+      const auto in_plane = [&](std::size_t c, const Plane& pl) {
+        for (auto v : clusters[c])
+          if (std::abs(pl.dist(pc[cand[live[v]]])) > 1.5e-3) return false;
+        return true;
+      };
+      while (!queue.empty()) {
+        const std::size_t k = queue.front();
+        queue.pop_front();
+        const Plane& pl = plane[owner[k]];
+        for (auto v : clusters[k]) {
+          ctree.radius(lf[v], static_cast<float>(P.fragment_merge * tol), nb);
+          for (const auto& [j, d2] : nb) {
+            const std::size_t c = ck[j];
+            if (owner[c] < clusters.size() || !in_plane(c, pl)) continue;
+            owner[c] = owner[k];
+            queue.push_back(c);
+          }
+        }
+      }
       std::size_t joined = 0;
       for (std::size_t k = 0; k < clusters.size(); ++k) {
-        auto& cl = clusters[k];
-        if (cl.size() >= static_cast<std::size_t>(P.min_region_points) || !fragment(cl)) continue;
-        std::size_t to = clusters.size();
-        float best = std::numeric_limits<float>::max();
-        for (auto v : cl) {
-          rtree.radius(lf[v], static_cast<float>(P.fragment_merge * tol), nb);
-          for (const auto& [j, d2] : nb)
-            if (d2 < best) {
-              best = d2;
-              to = rk[j];
-            }
-        }
-        if (to == clusters.size()) continue;
-        clusters[to].insert(clusters[to].end(), cl.begin(), cl.end());
-        joined += cl.size();
-        cl.clear();
+        if (!cand_cl[k] || owner[k] >= clusters.size()) continue;
+        auto& to = clusters[owner[k]];
+        to.insert(to.end(), clusters[k].begin(), clusters[k].end());
+        joined += clusters[k].size();
+        clusters[k].clear();
       }
       if (joined > 0)
-        spdlog::debug("detect: {} points of small fragments joined the regions next to them", joined);
+        spdlog::debug("detect: {} points of small clusters joined the regions they reach", joined);
     }
   }
 
