@@ -373,6 +373,41 @@ TEST(FlashDetection, FinSeenInSparseScanLinesIsOneRegion) {
   EXPECT_GT(along_root(r_on), 0.07);
 }
 
+TEST(FlashDetection, ScanLinesAcrossAFinWhoseRootIsHiddenJoinItsRegion) {
+  // Over 20 mm of a 5 mm fin the root strip (2 mm) is hidden and the rest seen only in scan
+  // lines 0.6 mm apart, each too small to be a region and not reaching the casting, as where
+  // a wall hid a rounded corner from every view. Joined to the fin's region through each
+  // other, their inner ends stand for the hidden root and the grinding line runs on.
+  const Part part = straight_fin_part();
+  const PointCloud dense = sample(part, 0.0001, 0.03e-3, 7);
+  PointCloud scan_C;
+  for (const auto& p : dense.points) {
+    const bool on_fin = p.y() > 0.030001f && p.z() > 0.0145f && p.z() < 0.0156f;
+    const bool stretch = std::abs(p.x()) < 0.01f;
+    const double line = std::remainder(static_cast<double>(p.x()), 0.0006);
+    if (on_fin && stretch && (p.y() < 0.032f || std::abs(line) > 0.00006)) continue;
+    scan_C.points.push_back(p);
+  }
+  const MeshBvh cad(part.cad());
+  const Vec3 a(-0.04, 0.03, 0.015), b(0.04, 0.03, 0.015);
+  const auto along_root = [&](const DetectionResult& r) {
+    double len = 0;
+    for (const auto& path : r.paths) {
+      bool on = true;
+      for (const auto& p : path.points_C) on = on && distance_to_segment(p, a, b) < 0.3e-3;
+      if (on) len += path.length();
+    }
+    return len;
+  };
+  DetectionParams off;
+  off.fragment_merge = 0;
+  const auto r_off = detect_flash(to_scanner(scan_C), cad, kX_CM, off);
+  const auto r_on = detect_flash(to_scanner(scan_C), cad, kX_CM);
+  ASSERT_TRUE(r_off.ran && r_on.ran) << r_on.message;
+  EXPECT_LT(along_root(r_off), 0.065);
+  EXPECT_GT(along_root(r_on), 0.075);
+}
+
 TEST(FlashDetection, NoFlashNothingToGrind) {
   Part part = straight_fin_part();
   part.fins.clear();
