@@ -501,8 +501,9 @@ std::vector<double> pass_offsets(const GrindParams& P, double height) {
   std::vector<double> e;
   const double rough = height - P.finish_depth;
   if (rough > 1e-9) {
-    const auto n = static_cast<int>(std::ceil(rough / P.max_depth_of_cut - 1e-9));
-    if (n > 100) return std::vector<double>(static_cast<std::size_t>(n) + 1, 0.0);  // caller refuses
+    const double passes = std::ceil(rough / P.max_depth_of_cut - 1e-9);
+    if (passes > 100) return std::vector<double>(102, 0.0);  // the caller refuses more than 100
+    const auto n = static_cast<int>(passes);
     for (int j = 0; j < n; ++j)
       e.push_back(P.stock_allowance + P.finish_depth + rough * (n - 1 - j) / n);
   }
@@ -765,8 +766,8 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   if (res.passes > 100)
     throw ArgumentError(
         strf("GrindPath.fin_height: expected at most 100 passes of "
-             "max_depth_of_cut %g m, got fin_height %g m (%d passes)",
-             P.max_depth_of_cut, path.fin_height, res.passes));
+             "max_depth_of_cut %g m, got fin_height %g m (over 100 passes)",
+             P.max_depth_of_cut, path.fin_height));
 
   // In a hole the burr's axis runs on a circle of radius ρ = hole_r − r − e while its contact
   // with the wall runs on one of radius hole_r − e, faster by their ratio (a 5 mm hole with a

@@ -644,6 +644,12 @@ TEST(GrindPlanner, FinHigherThanDepthOfCutGivesRoughingPassesThenAFinishingPass)
   expect_single_branch(robot, r, P.max_joint_jump);
   expect_trajectory_sound(robot, r);
 
+  // A fin height that would need more than 100 passes is bad input (no overflow for absurd
+  // heights either).
+  for (double h : {1.0, 1e12}) {
+    path.fin_height = h;
+    EXPECT_THROW(plan_grind(robot, X_BC, path, P), ArgumentError) << h;
+  }
   // Unknown fin height: one pass.
   path.fin_height = 0;
   EXPECT_EQ(plan_grind(robot, X_BC, path, P).passes, 1);
