@@ -497,12 +497,16 @@ void check_param(bool ok, const char* field, const char* expected, double got) {
 // Extra axis offsets e of the passes for a fin `height` high [m]: roughing passes of equal
 // radial depths (each ≤ max_depth_of_cut) down to finish_depth above the wall, then the
 // finishing pass at the stock allowance. Unknown height (0): the finishing pass alone.
+// @throws ArgumentError when that takes more than 100 passes.
 std::vector<double> pass_offsets(const GrindParams& P, double height) {
   std::vector<double> e;
   const double rough = height - P.finish_depth;
   if (rough > 1e-9) {
     const double passes = std::ceil(rough / P.max_depth_of_cut - 1e-9);
-    if (passes > 100) return std::vector<double>(102, 0.0);  // the caller refuses more than 100
+    if (passes + 1 > 100)
+      throw ArgumentError(strf("GrindPath.fin_height: expected at most 100 passes of "
+                               "max_depth_of_cut %g m, got a fin %g m high (over 100 passes)",
+                               P.max_depth_of_cut, height));
     const auto n = static_cast<int>(passes);
     for (int j = 0; j < n; ++j)
       e.push_back(P.stock_allowance + P.finish_depth + rough * (n - 1 - j) / n);
@@ -763,11 +767,6 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   res.tool_radius = radius;
   res.pass_offsets = pass_offsets(P, std::min(path.fin_height, std::max(0.0, hole_r - radius)));
   res.passes = static_cast<int>(res.pass_offsets.size());
-  if (res.passes > 100)
-    throw ArgumentError(
-        strf("GrindPath.fin_height: expected at most 100 passes of "
-             "max_depth_of_cut %g m, got fin_height %g m (over 100 passes)",
-             P.max_depth_of_cut, path.fin_height));
 
   // In a hole the burr's axis runs on a circle of radius ρ = hole_r − r − e while its contact
   // with the wall runs on one of radius hole_r − e, faster by their ratio (a 5 mm hole with a

@@ -85,6 +85,17 @@ double distance_to_segment(const Vec3& p, const Vec3& a, const Vec3& b) {
   return (a + t * ab - p).norm();
 }
 
+// Total length of the grinding lines lying wholly within `tol` of the root segment a–b.
+double length_along(const DetectionResult& r, const Vec3& a, const Vec3& b, double tol) {
+  double len = 0;
+  for (const auto& path : r.paths) {
+    bool on = true;
+    for (const auto& p : path.points_C) on = on && distance_to_segment(p, a, b) < tol;
+    if (on) len += path.length();
+  }
+  return len;
+}
+
 }  // namespace
 
 TEST(FlashDetection, StraightFinPathWithinFiftyMicrons) {
@@ -352,15 +363,7 @@ TEST(FlashDetection, FinSeenInSparseScanLinesIsOneRegion) {
   const MeshBvh cad(part.cad());
   const Vec3 a(-0.04, -0.03, 0.015), b(0.04, -0.03, 0.015);
   // Length of the grinding lines lying along the sparse fin's root (within 0.2 mm of it).
-  const auto along_root = [&](const DetectionResult& r) {
-    double len = 0;
-    for (const auto& path : r.paths) {
-      bool on = true;
-      for (const auto& p : path.points_C) on = on && distance_to_segment(p, a, b) < 0.2e-3;
-      if (on) len += path.length();
-    }
-    return len;
-  };
+  const auto along_root = [&](const DetectionResult& r) { return length_along(r, a, b, 0.2e-3); };
   DetectionParams off;
   off.fragment_merge = 0;
   const auto r_off = detect_flash(to_scanner(scan_C), cad, kX_CM, off);
@@ -390,15 +393,7 @@ TEST(FlashDetection, ScanLinesAcrossAFinWhoseRootIsHiddenJoinItsRegion) {
   }
   const MeshBvh cad(part.cad());
   const Vec3 a(-0.04, 0.03, 0.015), b(0.04, 0.03, 0.015);
-  const auto along_root = [&](const DetectionResult& r) {
-    double len = 0;
-    for (const auto& path : r.paths) {
-      bool on = true;
-      for (const auto& p : path.points_C) on = on && distance_to_segment(p, a, b) < 0.3e-3;
-      if (on) len += path.length();
-    }
-    return len;
-  };
+  const auto along_root = [&](const DetectionResult& r) { return length_along(r, a, b, 0.3e-3); };
   DetectionParams off;
   off.fragment_merge = 0;
   const auto r_off = detect_flash(to_scanner(scan_C), cad, kX_CM, off);
