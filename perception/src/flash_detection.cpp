@@ -6,7 +6,9 @@
 #include <deque>
 #include <cmath>
 #include <limits>
+#include <map>
 #include <numeric>
+#include <set>
 #include <queue>
 #include <sstream>
 
@@ -69,6 +71,7 @@ struct Plane {
   Vec3 c = Vec3::Zero();
   Vec3 n = Vec3::UnitZ();
   Mat3 axes = Mat3::Identity();
+  Vec3 spread = Vec3::Zero();  ///< eigenvalues of the scatter matrix, by the axes' order
   double dist(const Vec3& p) const { return n.dot(p - c); }
 };
 
@@ -81,8 +84,135 @@ Plane fit_plane(const std::vector<Vec3>& pts) {
   for (const auto& p : pts) C += (p - pl.c) * (p - pl.c).transpose();
   Eigen::SelfAdjointEigenSolver<Mat3> es(C);
   pl.axes = es.eigenvectors();
+  pl.spread = es.eigenvalues();
   pl.n = pl.axes.col(0).normalized();
   return pl;
+}
+
+// Support planes (table, fixture faces): RANSAC planes through many candidates with the whole
+// CAD model on one side; a fin's plane cuts through the part, so it is never taken for one.
+// A support removes its own points and the candidates behind it, but only over its footprint:
+// the 2 mm cells of the plane (and their neighbours) where its inliers lie on a surface along
+// the plane. A fixture's face is a few centimetres wide; behind its plane beyond its edges
+// stand fins of the casting (past the outer face of a clamp block beside the part), and a fin
+// crossing the plane leaves inliers on a strip across it whose neighbourhood is no surface
+// along the plane. Returns the candidates still alive.
+std::vector<bool> support_plane_mask(const std::vector<Vec3>& pc,
+                                     const std::vector<std::uint32_t>& cand,
+                                     const detail::KdTree& cand_tree,
+                                     const std::vector<Eigen::Vector3f>& cf,
+                                     const std::vector<double>& dist, const TriangleMesh& cad,
+                                     const DetectionParams& P, std::size_t& support_points) {
+  constexpr double kCell = 2e-3;  // [m] footprint cells, and the neighbourhood of a cell's fit
+  std::vector<bool> alive(cand.size(), true);
+  Rng rng(12345);
+  std::vector<bool> excluded(cand.size(), false);
+  std::vector<std::pair<std::uint32_t, float>> nb;
+  for (int plane_no = 0; plane_no < 6; ++plane_no) {
+    std::vector<std::uint32_t> pool;
+    for (std::size_t c = 0; c < cand.size(); ++c)
+      if (alive[c] && !excluded[c]) pool.push_back(static_cast<std::uint32_t>(c));
+    if (pool.size() < static_cast<std::size_t>(P.min_region_points)) break;
+    const std::size_t probe_step = std::max<std::size_t>(1, pool.size() / 4000);
+    Plane best;
+    std::size_t best_count = 0;
+    for (int it = 0; it < 300; ++it) {
+      const Vec3 a = pc[cand[pool[static_cast<std::size_t>(rng.uniform() * pool.size())]]];
+      const Vec3 b = pc[cand[pool[static_cast<std::size_t>(rng.uniform() * pool.size())]]];
+      const Vec3 c = pc[cand[pool[static_cast<std::size_t>(rng.uniform() * pool.size())]]];
+      Vec3 nn = (b - a).cross(c - a);
+      if (nn.norm() < 1e-12) continue;
+      Plane pl;
+      pl.n = nn.normalized();
+      pl.c = a;
+      std::size_t count = 0;
+      for (std::size_t q = 0; q < pool.size(); q += probe_step)
+        count += std::abs(pl.dist(pc[cand[pool[q]]])) < P.support_distance;
+      if (count > best_count) {
+        best_count = count;
+        best = pl;
+      }
+    }
+    std::vector<std::uint32_t> inl;
+    for (auto q : pool)
+      if (std::abs(best.dist(pc[cand[q]])) < P.support_distance) inl.push_back(q);
+    if (inl.size() < static_cast<std::size_t>(P.min_region_points)) break;
+    std::vector<Vec3> ip;
+    for (auto q : inl) ip.push_back(pc[cand[q]]);
+    best = fit_plane(ip);
+    double smin = 1e300, smax = -1e300;
+    for (const auto& v : cad.vertices) {
+      const double sv = best.dist(v);
+      smin = std::min(smin, sv);
+      smax = std::max(smax, sv);
+    }
+    // A plane along one of the CAD's own faces, through the noisy tail of that face's points
+    // (an obliquely seen face is noisier than the threshold assumes), also has the whole CAD
+    // on one side, yet it is no support: behind it stand the fins that grow out of that face.
+    // Many of its inliers hug the CAD (a fifth: fins standing on the face add inliers off
+    // it); a table's or fixture's points lie off it.
+    std::size_t hugging = 0;
+    for (auto q : inl) hugging += dist[cand[q]] < P.support_distance;
+    const bool cad_face = 5 * hugging >= inl.size();
+    const bool support =
+        !cad_face && (smin > -P.support_side_tolerance || smax < P.support_side_tolerance);
+    if (!support) {
+      for (auto q : inl) excluded[q] = true;
+      spdlog::debug("detect: plane {} n=({:.3f},{:.3f},{:.3f}) offset {:.4f}: {} inliers ({} on "
+                    "the CAD), CAD side [{:.4f}, {:.4f}] -> {}",
+                    plane_no, best.n.x(), best.n.y(), best.n.z(), best.n.dot(best.c), inl.size(),
+                    hugging, smin, smax, cad_face ? "kept (a CAD face)" : "kept");
+      continue;
+    }
+    // Footprint: cells whose inliers (off the CAD) have a neighbourhood lying along the plane,
+    // or too thin to tell (one scan line); one fit per cell.
+    const Vec3 eu = best.axes.col(2), ev = best.axes.col(1);
+    const auto cell_of = [&](const Vec3& x) {
+      const auto iu = static_cast<std::int64_t>(std::floor(eu.dot(x - best.c) / kCell));
+      const auto iv = static_cast<std::int64_t>(std::floor(ev.dot(x - best.c) / kCell));
+      return std::pair<std::int64_t, std::int64_t>(iu, iv);
+    };
+    std::map<std::pair<std::int64_t, std::int64_t>, Vec3> cell_sum;
+    std::map<std::pair<std::int64_t, std::int64_t>, int> cell_count;
+    for (auto q : inl) {
+      if (dist[cand[q]] < P.support_distance) continue;
+      const auto key = cell_of(pc[cand[q]]);
+      auto [it, fresh] = cell_sum.try_emplace(key, Vec3::Zero());
+      it->second += pc[cand[q]];
+      ++cell_count[key];
+    }
+    std::set<std::pair<std::int64_t, std::int64_t>> footprint;
+    for (const auto& [key, sum] : cell_sum) {
+      const Vec3 centre = sum / cell_count[key];
+      cand_tree.radius(centre.cast<float>(), static_cast<float>(kCell), nb);
+      std::vector<Vec3> local;
+      for (const auto& [j, d2] : nb) local.push_back(cf[j].cast<double>());
+      const Plane lp = fit_plane(local);
+      const bool thin = local.size() < 5 || lp.spread(1) < 0.05 * lp.spread(2);
+      if (thin || std::abs(lp.n.dot(best.n)) > std::cos(M_PI / 6)) footprint.insert(key);
+    }
+    const double side = smin > -P.support_side_tolerance ? 1.0 : -1.0;
+    std::size_t dropped = 0;
+    for (std::size_t c = 0; c < cand.size(); ++c) {
+      if (!alive[c] || side * best.dist(pc[cand[c]]) >= P.support_distance) continue;
+      const auto [iu, iv] = cell_of(pc[cand[c]]);
+      bool on = false;
+      for (std::int64_t du = -1; du <= 1 && !on; ++du)
+        for (std::int64_t dv = -1; dv <= 1 && !on; ++dv) on = footprint.count({iu + du, iv + dv}) > 0;
+      if (!on) continue;
+      alive[c] = false;
+      ++dropped;
+    }
+    support_points += dropped;
+    // Inliers off the footprint are not this plane's: never tried again as a support's.
+    for (auto q : inl)
+      if (alive[q]) excluded[q] = true;
+    spdlog::debug("detect: plane {} n=({:.3f},{:.3f},{:.3f}) offset {:.4f}: {} inliers ({} on the "
+                  "CAD), CAD side [{:.4f}, {:.4f}] -> support over {} cells: {} points dropped",
+                  plane_no, best.n.x(), best.n.y(), best.n.z(), best.n.dot(best.c), inl.size(),
+                  hugging, smin, smax, footprint.size(), dropped);
+  }
+  return alive;
 }
 
 }  // namespace
@@ -583,8 +713,9 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
   // Median spacing of the candidates (sets the clustering, alpha and gap scales).
   std::vector<Eigen::Vector3f> cf(cand.size());
   for (std::size_t c = 0; c < cand.size(); ++c) cf[c] = pc[cand[c]].cast<float>();
+  const detail::KdTree cand_tree(cf);
   {
-    detail::KdTree tree(cf);
+    const detail::KdTree& tree = cand_tree;
     // Line scanners sample densely along a profile and sparsely across profiles: besides the
     // nearest-neighbour spacing, the spacing across (nearest neighbour off the line through
     // the nearest one) sets the scales that must bridge profiles.
@@ -611,79 +742,8 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
   }
   const double spacing = res.spacing_across;
 
-  // Support planes (table, fixture faces): planes through many candidates with the whole CAD
-  // model on one side. A fin's plane cuts through the part, so it is never taken for one.
-  std::vector<bool> alive(cand.size(), true);
-  {
-    Rng rng(12345);
-    std::vector<bool> excluded(cand.size(), false);
-    for (int plane_no = 0; plane_no < 6; ++plane_no) {
-      std::vector<std::uint32_t> pool;
-      for (std::size_t c = 0; c < cand.size(); ++c)
-        if (alive[c] && !excluded[c]) pool.push_back(static_cast<std::uint32_t>(c));
-      if (pool.size() < static_cast<std::size_t>(P.min_region_points)) break;
-      const std::size_t probe_step = std::max<std::size_t>(1, pool.size() / 4000);
-      Plane best;
-      std::size_t best_count = 0;
-      for (int it = 0; it < 300; ++it) {
-        const Vec3 a = pc[cand[pool[static_cast<std::size_t>(rng.uniform() * pool.size())]]];
-        const Vec3 b = pc[cand[pool[static_cast<std::size_t>(rng.uniform() * pool.size())]]];
-        const Vec3 c = pc[cand[pool[static_cast<std::size_t>(rng.uniform() * pool.size())]]];
-        Vec3 nn = (b - a).cross(c - a);
-        if (nn.norm() < 1e-12) continue;
-        Plane pl;
-        pl.n = nn.normalized();
-        pl.c = a;
-        std::size_t count = 0;
-        for (std::size_t q = 0; q < pool.size(); q += probe_step)
-          count += std::abs(pl.dist(pc[cand[pool[q]]])) < P.support_distance;
-        if (count > best_count) {
-          best_count = count;
-          best = pl;
-        }
-      }
-      std::vector<std::uint32_t> inl;
-      for (auto q : pool)
-        if (std::abs(best.dist(pc[cand[q]])) < P.support_distance) inl.push_back(q);
-      if (inl.size() < static_cast<std::size_t>(P.min_region_points)) break;
-      std::vector<Vec3> ip;
-      for (auto q : inl) ip.push_back(pc[cand[q]]);
-      best = fit_plane(ip);
-      double smin = 1e300, smax = -1e300;
-      for (const auto& v : cad.vertices) {
-        const double s = best.dist(v);
-        smin = std::min(smin, s);
-        smax = std::max(smax, s);
-      }
-      // A plane along one of the CAD's own faces, through the noisy tail of that face's points
-      // (an obliquely seen face is noisier than the threshold assumes), also has the whole
-      // CAD on one side, yet it is no support: behind it stand the fins that grow out of that
-      // face. Its inliers hug the CAD; a table's or fixture's points lie off it.
-      std::size_t hugging = 0;
-      for (auto q : inl) hugging += dist[cand[q]] < P.support_distance;
-      const bool cad_face = 2 * hugging >= inl.size();
-      const bool support = !cad_face &&
-                           (smin > -P.support_side_tolerance || smax < P.support_side_tolerance);
-      spdlog::debug("detect: plane {} n=({:.3f},{:.3f},{:.3f}) offset {:.4f}: {} inliers ({} on the CAD), CAD side [{:.4f}, {:.4f}] -> {}",
-                    plane_no, best.n.x(), best.n.y(), best.n.z(), best.n.dot(best.c), inl.size(),
-                    hugging, smin, smax,
-                    support ? "support" : cad_face ? "kept (a CAD face)" : "kept");
-      if (support) {
-        // Drop the plane's points and anything behind it (away from the part).
-        const double side = smin > -P.support_side_tolerance ? 1.0 : -1.0;
-        for (std::size_t c = 0; c < cand.size(); ++c) {
-          if (!alive[c]) continue;
-          const double s = side * best.dist(pc[cand[c]]);
-          if (s < P.support_distance) {
-            alive[c] = false;
-            ++res.support_points;
-          }
-        }
-      } else {
-        for (auto q : inl) excluded[q] = true;
-      }
-    }
-  }
+  const std::vector<bool> alive =
+      support_plane_mask(pc, cand, cand_tree, cf, dist, cad, P, res.support_points);
 
   spdlog::debug("detect: {} cropped, {} candidates, threshold {:.4f} mm, spacing {:.3f}/{:.3f} mm, {} on supports",
                 m, cand.size(), res.threshold * 1e3, res.spacing * 1e3, spacing * 1e3, res.support_points);
@@ -872,10 +932,11 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
     for (auto s : cl) {
       const auto k = cand[live[s]];
       pts.push_back(pc[k]);
-      touching += dist[k] < inner_limit;
+      touching += dist[k] < std::min(hidden_limit, far);
     }
     // A flash grows out of the casting: a cluster that never comes near the surface is
-    // something else (fixture, robot, stray points).
+    // something else (fixture, robot, stray points). Near: within the hidden-root band, where
+    // a fin whose root a wall hides along its whole length still reaches.
     if (touching < 3) {
       spdlog::debug("detect: cluster of {} points never near the CAD: dropped", cl.size());
       continue;

@@ -5,6 +5,7 @@
 #include <cstdarg>
 #include <cstdio>
 #include <limits>
+#include <optional>
 
 #include "flashtwin/core/errors.hpp"
 #include "flashtwin/core/format.hpp"
@@ -494,6 +495,122 @@ void check_param(bool ok, const char* field, const char* expected, double got) {
   if (!ok) throw ArgumentError(strf("GrindParams.%s: expected %s, got %g", field, expected, got));
 }
 
+// One sample of the root curve in {C}: point, wall normal, tangent along the travel, the nearest
+// input point, and the spline segment it lies on (between kept points seg and seg + 1).
+struct PathSample {
+  Vec3 p, n, t;
+  int path_index = 0;
+  std::size_t seg = 0;
+};
+
+// A sharp convex edge of the wall between two root points: where the root lines along the two
+// faces meet, and the angle the wall normal turns there.
+struct Corner {
+  Vec3 edge;
+  double turn = 0;  // [rad]
+};
+
+// Root points a, b (wall normals na, nb ⊥ f) on either side of a sharp convex edge. The root
+// line on each face runs along n × f; both lie in the fin plane, so the edge E solves
+//   na·E = na·a,  nb·E = nb·b,  f·E = f·a.
+// Convex: each point lies behind the other's face (the material is inside the chord a–b, and
+// an interpolating spline between them cuts into it). The edge must lie ahead of a and
+// behind b, each within `reach`; the normals must turn 25–150° (a rounded edge turns in
+// smaller steps, which the spline follows).
+std::optional<Corner> convex_corner(const Vec3& a, const Vec3& na, const Vec3& b, const Vec3& nb,
+                                    const Vec3& f, double reach) {
+  const double turn = std::acos(std::clamp(na.dot(nb), -1.0, 1.0));
+  if (turn < 25 * M_PI / 180 || turn > 150 * M_PI / 180) return std::nullopt;
+  if (na.dot(b - a) >= 0 || nb.dot(a - b) >= 0) return std::nullopt;  // concave or flat
+  Mat3 A;
+  A.row(0) = na.transpose();
+  A.row(1) = nb.transpose();
+  A.row(2) = f.transpose();
+  const Vec3 E = A.fullPivLu().solve(Vec3(na.dot(a), nb.dot(b), f.dot(a)));
+  Vec3 ta = na.cross(f), tb = nb.cross(f);
+  if (ta.dot(b - a) < 0) ta = -ta;
+  if (tb.dot(b - a) < 0) tb = -tb;
+  const double sa = ta.dot(E - a), sb = tb.dot(b - E);
+  constexpr double kSlack = 1e-5;
+  if (!E.allFinite() || sa < -kSlack || sb < -kSlack || sa > reach || sb > reach) return std::nullopt;
+  return Corner{E, turn};
+}
+
+// Sharp convex edges: the quintic spline through root points on two faces cuts the edge on a
+// chord (0.3–0.5 mm inside the steel at a 90° edge with 1 mm point spacing) and rings for a few
+// millimetres beside it, and the flush burr would follow it into the wall. Near each edge the
+// samples are replaced by the root lines themselves: straight along face a up to the edge,
+// then a roll round it (the root point stays on the edge while the wall normal turns from na
+// to nb about f, so the burr's axis runs on an arc of radius r + e round the edge and grinds
+// the flash standing off it), then straight along face b. Within `kStraight` of the edge,
+// as long as the samples keep their face's normal. (Closed paths: not across their seam.)
+void roll_round_convex_corners(std::vector<PathSample>& ps, const std::vector<Vec3>& pts,
+                               const std::vector<Vec3>& kept_wall, const Vec3& f, double spacing,
+                               double radius) {
+  constexpr double kReach = 0.003, kStraight = 0.006;
+  const double same_face = std::cos(10 * M_PI / 180);
+  std::vector<PathSample> out;
+  std::size_t next = 0;  // first sample of ps not yet copied to out
+  for (std::size_t j = 0; j + 1 < pts.size(); ++j) {
+    const Vec3 &na = kept_wall[j], &nb = kept_wall[j + 1];
+    const auto c = convex_corner(pts[j], na, pts[j + 1], nb, f, kReach);
+    if (!c) continue;
+    // The samples on segment j, widened along each face.
+    std::size_t k0 = ps.size(), k1 = 0;
+    for (std::size_t k = next; k < ps.size(); ++k)
+      if (ps[k].seg == j) {
+        k0 = std::min(k0, k);
+        k1 = std::max(k1, k);
+      }
+    if (k0 >= ps.size() || k0 < std::max<std::size_t>(next, 1) || k1 + 2 > ps.size()) continue;
+    while (k0 > std::max<std::size_t>(next, 1) && (ps[k0 - 1].p - c->edge).norm() <= kStraight &&
+           ps[k0 - 1].n.dot(na) >= same_face)
+      --k0;
+    while (k1 + 2 < ps.size() && (ps[k1 + 1].p - c->edge).norm() <= kStraight &&
+           ps[k1 + 1].n.dot(nb) >= same_face)
+      ++k1;
+    Vec3 ta = na.cross(f), tb = nb.cross(f);
+    if (ta.dot(pts[j + 1] - pts[j]) < 0) ta = -ta;
+    if (tb.dot(pts[j + 1] - pts[j]) < 0) tb = -tb;
+    // Nearest input point of a new sample: that of the nearest replaced sample.
+    const auto index_near = [&](const Vec3& q) {
+      std::size_t best = k0;
+      for (std::size_t k = k0; k <= k1; ++k)
+        if ((ps[k].p - q).norm() < (ps[best].p - q).norm()) best = k;
+      return ps[best].path_index;
+    };
+    out.insert(out.end(), ps.begin() + static_cast<std::ptrdiff_t>(next),
+               ps.begin() + static_cast<std::ptrdiff_t>(k0));
+    const Vec3& E = c->edge;
+    const double La = std::max(0.0, ta.dot(E - ps[k0].p)), Lb = std::max(0.0, tb.dot(ps[k1].p - E));
+    const auto ma = static_cast<std::size_t>(std::ceil(La / spacing - 1e-9));
+    for (std::size_t i = 0; i < ma; ++i) {
+      const Vec3 q = E - ta * La * (1 - static_cast<double>(i) / static_cast<double>(ma));
+      out.push_back({q, na, ta, index_near(q), j});
+    }
+    // The roll: the burr's axis moves r·turn along its arc; steps of about `spacing`.
+    const Vec3 axis = na.cross(nb).normalized();
+    const auto mr = static_cast<std::size_t>(std::max(2.0, std::ceil(radius * c->turn / spacing)));
+    const int at_edge = index_near(E);
+    for (std::size_t i = 0; i <= mr; ++i) {
+      const double th = c->turn * static_cast<double>(i) / static_cast<double>(mr);
+      const Vec3 n = Eigen::AngleAxisd(th, axis) * na;
+      Vec3 t = n.cross(f).normalized();
+      if (t.dot(ta + tb) < 0) t = -t;
+      out.push_back({E, n, t, at_edge, j});
+    }
+    const auto mb = static_cast<std::size_t>(std::ceil(Lb / spacing - 1e-9));
+    for (std::size_t i = 1; i <= mb; ++i) {
+      const Vec3 q = E + tb * Lb * static_cast<double>(i) / static_cast<double>(mb);
+      out.push_back({q, nb, tb, index_near(q), j + 1});
+    }
+    next = k1 + 1;
+  }
+  if (next == 0) return;  // no sharp convex edge
+  out.insert(out.end(), ps.begin() + static_cast<std::ptrdiff_t>(next), ps.end());
+  ps = std::move(out);
+}
+
 // Extra axis offsets e of the passes for a fin `height` high [m]: roughing passes of equal
 // radial depths (each ≤ max_depth_of_cut) down to finish_depth above the wall, then the
 // finishing pass at the stock allowance. Unknown height (0): the finishing pass alone.
@@ -692,10 +809,6 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
       static_cast<std::size_t>(std::max(1.0, std::ceil(total / P.spacing - 1e-9)));
   const std::vector<double>& up = spline.curve.params;
   const std::size_t K = pts.size();
-  struct PathSample {
-    Vec3 p, n, t;
-    int path_index = 0;
-  };
   std::vector<PathSample> ps(n_samples + 1);
   for (std::size_t k = 0; k <= n_samples; ++k) {
     const double s = total * static_cast<double>(k) / static_cast<double>(n_samples);
@@ -727,7 +840,12 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
       }
       if (i == i1) break;
     }
-    ps[k] = {d[0], n, t, static_cast<int>(best)};
+    ps[k] = {d[0], n, t, static_cast<int>(best), j};
+  }
+  {
+    std::vector<Vec3> kept_wall;
+    for (std::size_t k : kept) kept_wall.push_back(wall[k]);
+    roll_round_convex_corners(ps, pts, kept_wall, f, P.spacing, radius);
   }
   // ---- Run-out past the ends of an open path, straight along the end tangents.
   if (!path.closed && P.overrun > 0 && ps.size() >= 3) {
@@ -749,7 +867,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
       const auto m = static_cast<std::size_t>(std::floor(len / P.spacing + 1e-9));
       for (std::size_t i = 1; i <= m; ++i)
         out.push_back({end.p + sign * static_cast<double>(i) * P.spacing * end.t, end.n, end.t,
-                       end.path_index});
+                       end.path_index, end.seg});
       return out;
     };
     const std::size_t back3 = std::min<std::size_t>(

@@ -403,6 +403,50 @@ TEST(FlashDetection, ScanLinesAcrossAFinWhoseRootIsHiddenJoinItsRegion) {
   EXPECT_GT(along_root(r_on), 0.075);
 }
 
+TEST(FlashDetection, FinPastTheOuterFaceOfAFixtureBesideItStaysFlash) {
+  // A clamp block stands 3 mm off the part's +y wall with its outer face 0.5 mm past the part's
+  // -x end (the largest face in the crop: the first support found); a fin 5 mm out of that end
+  // lies behind the face's plane (away from the part). The plane is a support (the whole CAD
+  // on one side), but the fin is beyond the block's edges: it must stay flash (before the
+  // footprint it was dropped with everything behind the plane), and the clamp must not.
+  Part part;
+  part.body.emplace_back(Vec3(-0.05, -0.03, 0), Vec3(0.05, 0.03, 0.03));
+  part.fins.emplace_back(Vec3(-0.055, -0.02, 0.0146), Vec3(-0.05, 0.02, 0.0154));
+  Part scene = part;
+  const Eigen::AlignedBox3d clamp(Vec3(-0.0505, 0.033, 0), Vec3(-0.045, 0.09, 0.06));
+  scene.body.push_back(clamp);
+  const PointCloud scan_C = sample(scene, 0.0002, 0.03e-3, 17);
+  const MeshBvh cad(part.cad());
+  const auto r = detect_flash(to_scanner(scan_C), cad, kX_CM);
+  ASSERT_TRUE(r.ran) << r.message;
+  EXPECT_GT(r.support_points, 1000u) << "the clamp's faces are supports";
+  const Vec3 a(-0.05, -0.02, 0.015), b(-0.05, 0.02, 0.015);
+  EXPECT_GT(length_along(r, a, b, 0.3e-3), 0.035);
+  // No grinding line on the clamp.
+  for (const auto& path : r.paths)
+    for (const auto& p : path.points_C) EXPECT_FALSE(clamp.contains(p)) << p.transpose();
+}
+
+TEST(FlashDetection, FinWhoseRootIsHiddenAlongItsWholeLengthIsStillFound) {
+  // No point within 1.5 mm of the wall comes back along the whole fin (a wall above hid its
+  // root from every view): the fin never comes within the inner band of the casting, yet it
+  // reaches into the hidden-root band, and its edge nearest the wall stands for the root.
+  const Part part = straight_fin_part();
+  const PointCloud full = sample(part, 0.0001, 0.03e-3, 23);
+  PointCloud scan_C;
+  for (const auto& p : full.points)
+    if (!(p.y() > 0.03f && p.y() < 0.0315f)) scan_C.points.push_back(p);
+  const MeshBvh cad(part.cad());
+  const Vec3 a(-0.04, 0.03, 0.015), b(0.04, 0.03, 0.015);
+  DetectionParams off;
+  off.hidden_root_band = 0;
+  const auto r_off = detect_flash(to_scanner(scan_C), cad, kX_CM, off);
+  const auto r_on = detect_flash(to_scanner(scan_C), cad, kX_CM);
+  ASSERT_TRUE(r_on.ran) << r_on.message;
+  EXPECT_LT(length_along(r_off, a, b, 0.3e-3), 0.01);
+  EXPECT_GT(length_along(r_on, a, b, 0.3e-3), 0.07);
+}
+
 TEST(FlashDetection, NoFlashNothingToGrind) {
   Part part = straight_fin_part();
   part.fins.clear();

@@ -581,6 +581,59 @@ TEST(GrindPlanner, RunOutIsShortenedWhereTheWallCurves) {
   }
 }
 
+TEST(GrindPlanner, BurrRollsRoundAConvexEdgeWithoutCuttingIt) {
+  // A fin round the sharp 90° edge of a block (steel where x_C ≥ 0 and y_C ≤ 0): root points
+  // 1 mm apart along the face x_C = 0 (normal −x_C) up to 0.4 mm before the edge, then from
+  // 0.6 mm past it along the face y_C = 0 (normal +y_C). The flush burr must not cut into the
+  // block anywhere (a spline through the points cuts the edge on a chord), and must stay on
+  // the edge as it goes round it (touching the steel at every finishing sample).
+  const RobotModel robot = ftest::ft6();
+  const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
+  GrindPath path;
+  for (double y = -0.0204; y < 0; y += 0.001) {
+    path.points_C.push_back(Vec3(0, y, 0));
+    path.normals_C.push_back(Vec3(-1, 0, 0));
+  }
+  for (double x = 0.0006; x < 0.021; x += 0.001) {
+    path.points_C.push_back(Vec3(x, 0, 0));
+    path.normals_C.push_back(Vec3(0, 1, 0));
+  }
+  path.fin_normal_C = kUp;
+  GrindParams P = flush();
+  P.lead = 0;
+  P.tilt = 0;
+  P.overrun = 0;
+  const GrindResult r = plan_grind(robot, X_BC, path, P);
+  ASSERT_TRUE(r.ok()) << r.message;
+  const double rad = robot.tool.radius;
+  // Distance in the fin plane from the burr's axis to the block.
+  const auto to_block = [](const Vec3& q) {
+    if (q.x() < 0 && q.y() > 0) return std::hypot(q.x(), q.y());
+    if (q.x() < 0) return -q.x();
+    if (q.y() > 0) return q.y();
+    return -std::min(q.x(), -q.y());
+  };
+  double worst = 1e9, farthest = 0;
+  std::size_t rolled = 0;
+  for (const auto& g : r.segments) {
+    if (g.kind != SampleKind::kCut) continue;
+    for (std::size_t i = g.first_sample; i <= g.last_sample; ++i) {
+      const Pose& X = r.samples[i].X_CT;
+      const Vec3 z = X.linear().col(2);
+      ASSERT_GT(std::abs(z.z()), 0.9);
+      const Vec3 axis = X.translation() - z * (X.translation().z() / z.z());  // at z_C = 0
+      const double gap = to_block(axis) - rad;
+      worst = std::min(worst, gap);
+      farthest = std::max(farthest, gap);
+      if (axis.x() < 0 && axis.y() > 0) ++rolled;
+    }
+  }
+  EXPECT_GT(worst, -5e-6) << "the burr cuts the edge by " << -worst * 1e3 << " mm";
+  EXPECT_LT(farthest, 5e-6) << "the burr leaves the wall by " << farthest * 1e3 << " mm";
+  EXPECT_GE(rolled, 5u) << "the burr should roll round the edge in steps";
+  expect_trajectory_sound(robot, r);
+}
+
 TEST(GrindPlanner, FinHigherThanDepthOfCutGivesRoughingPassesThenAFinishingPass) {
   const RobotModel robot = ftest::ft6();
   const Pose X_BC = translation(Vec3(0.7, 0, -0.15));

@@ -606,7 +606,7 @@ TEST(ScanPlan, PlannedViewsSeeTheRootsTheFixedViewsMissBehindTheFixture) {
     sc.auto_views = true;
     const auto planned = pipeline::scan_scenario(sc, ftest::temp_dir("plan_auto"), 2);
     ASSERT_TRUE(planned.planned);
-    EXPECT_LE(planned.params.views.size(), 6u);
+    EXPECT_LE(planned.params.views.size(), static_cast<std::size_t>(sc.view_plan.max_views));
     EXPECT_LT(planned.plan.unseen_fraction, 0.06) << "seed " << seed;
     const double u_fixed = pipeline::unseen_parting_fraction(fixed), u_planned = pipeline::unseen_parting_fraction(planned);
     // Over default seeds 5001-5050 the planned views left p50 3.9 %, p90 8 %, worst 15 % unseen.
