@@ -241,6 +241,51 @@ std::shared_ptr<const ModelTarget> ModelTarget::from_mesh(const TriangleMesh& me
 
 namespace {
 
+// The finalists' decision from the evidence points: a finalist has strong evidence over a rival
+// where it explains a point (expl 1) that lies far from the rival's model (expl 0). Points near
+// both models (edges, noise, mixed pixels) say nothing, so a small datum feature (a flat on a
+// round flange, a hole) decides even when most of the part is symmetric and the rival explains
+// nearly as many points. Starting from the finalist that explains the most, a rival with more
+// strong evidence against it takes its place until none has; the ambiguity is the strongest
+// rival's evidence over the winner's against it (+5 each: a handful of points decides nothing).
+struct EvidenceVerdict {
+  std::size_t winner = 0;
+  double for_winner = 0, for_rival = 0;
+  double ambiguity = 0;
+};
+
+EvidenceVerdict decide_by_evidence(const std::vector<std::vector<char>>& expl, std::size_t start) {
+  const auto strong = [&](std::size_t a, std::size_t b) {
+    double n = 0;
+    for (std::size_t i = 0; i < expl[a].size(); ++i) n += expl[a][i] == 1 && expl[b][i] == 0;
+    return n;
+  };
+  EvidenceVerdict v;
+  v.winner = start;
+  // At most one change of winner per finalist: a cycle (a over b over c over a) ends ambiguous.
+  for (std::size_t round = 0; round < expl.size(); ++round) {
+    bool changed = false;
+    for (std::size_t k = 0; k < expl.size(); ++k)
+      if (k != v.winner && strong(k, v.winner) > strong(v.winner, k)) {
+        v.winner = k;
+        changed = true;
+      }
+    if (!changed) break;
+  }
+  v.ambiguity = 0;
+  for (std::size_t k = 0; k < expl.size(); ++k) {
+    if (k == v.winner) continue;
+    const double w = strong(v.winner, k), r = strong(k, v.winner);
+    const double a = std::min(1.0, (r + 5) / (w + 5));
+    if (a >= v.ambiguity) {
+      v.ambiguity = a;
+      v.for_winner = w;
+      v.for_rival = r;
+    }
+  }
+  return v;
+}
+
 struct CachedTarget {
   std::uint64_t hash = 0;
   TriangleMesh mesh;
@@ -833,10 +878,9 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
 
   const auto t_global = std::chrono::steady_clock::now();
   // The top distinct hypotheses compete at the fine level on every fine point: a point is
-  // explained by a pose when its point-to-plane residual is within `tight`. The winner
-  // explains the most; the runner-up decides the ambiguity from the points the two disagree
-  // on (D1: only the winner explains them, D2: only the runner-up), so that a small datum
-  // feature (a flat, a hole) decides even when most of the part is symmetric.
+  // explained by a pose when its point-to-plane residual is within `tight`. The finalists are
+  // then decided by the points one explains that lie far from another's model
+  // (decide_by_evidence).
   std::vector<Hypothesis> finalists;
   std::vector<std::vector<char>> expl;
   // Explained = close to the model (point-to-plane within `tight`) with a compatible normal:
@@ -853,6 +897,8 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
     estimate_normals(evidence_cloud, p.normal_k, p.viewpoint);
   }
   const PointCloud& evidence = clear ? sub : evidence_cloud;
+  // Per evidence point: 1 explained; 2 near the model but not explained (residual up to 4 ×
+  // tight, or a normal that disagrees): noise, edges and mixed pixels; 0 far from the model.
   auto explained = [&](const Pose& T) {
     std::vector<char> e(evidence.size(), 0);
     const Eigen::Matrix3f R = T.linear().cast<float>();
@@ -863,9 +909,10 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
       std::uint32_t j;
       const Vec3f q = R * evidence.points[i] + t;
       if (!tgt.nearest_in_band(q, j)) continue;
-      if (std::abs((tgt.dense.points[j] - q).dot(tgt.dense.normals[j])) > static_cast<float>(tight)) continue;
+      const float r = std::abs((tgt.dense.points[j] - q).dot(tgt.dense.normals[j]));
+      if (r > static_cast<float>(4 * tight)) continue;
       const float c = (R * evidence.normals[i]).dot(tgt.dense.normals[j]);
-      e[i] = (signed_n ? c : std::abs(c)) >= cos_tau;
+      e[i] = r <= static_cast<float>(tight) && (signed_n ? c : std::abs(c)) >= cos_tau ? 1 : 2;
     }
     return e;
   };
@@ -906,7 +953,7 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
                   f.stage, f.score, aa.angle() * 180 / M_PI, aa.axis().x(), aa.axis().y(), aa.axis().z(),
                   f.T.translation().x(), f.T.translation().y(), f.T.translation().z());
   }
-  std::size_t win = 0, runner = 0;
+  std::size_t win = 0;
   for (std::size_t k = 1; k < finalists.size(); ++k)
     if (finalists[k].score > finalists[win].score) win = k;
   // With a single finalist, the coarse level decides: unexplained share of the best over that
@@ -914,16 +961,12 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   const double s2 = second_distinct(hyps);
   res.ambiguity = s2 > 0 ? std::min(1.0, (1 - hyps[0].score + 1e-3) / (1 - s2 + 1e-3)) : 0.0;
   if (finalists.size() > 1) {
-    runner = win == 0 ? 1 : 0;
-    for (std::size_t k = 0; k < finalists.size(); ++k)
-      if (k != win && finalists[k].score > finalists[runner].score) runner = k;
-    double d1 = 0, d2 = 0;
-    for (std::size_t i = 0; i < evidence.size(); ++i) {
-      d1 += expl[win][i] && !expl[runner][i];
-      d2 += expl[runner][i] && !expl[win][i];
-    }
-    // A handful of disagreeing points decides nothing: the +5 keeps small counts ambiguous.
-    res.ambiguity = std::min(1.0, (d2 + 5) / (d1 + 5));
+    const EvidenceVerdict v = decide_by_evidence(expl, win);
+    spdlog::debug("register: {} finalists; most explained by {} ({:.0f} points), decided for {} "
+                  "(strong evidence {:.0f} against the strongest rival's {:.0f})",
+                  finalists.size(), win, finalists[win].score, v.winner, v.for_winner, v.for_rival);
+    win = v.winner;
+    res.ambiguity = v.ambiguity;
   }
   // Local search around the winner: small turns about the model's principal axes (the sweep's
   // 30° grid and short ICP runs can leave a near-symmetric part a few degrees off).

@@ -6,6 +6,7 @@
 #include <cstdlib>
 
 #include "flashtwin/perception/registration.hpp"
+#include "flashtwin/pipeline/run.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
 #include "flashtwin/sim/scan_cell.hpp"
 #include "test_util.hpp"
@@ -20,23 +21,34 @@ struct Case {
   double max_mm, max_deg;
   bool must_be_confident = true;  ///< false: the pose may be refused, but never wrong and confident
   long long seed = -1;            ///< >= 0: instead of the scenario's seed
+  bool as_run = false;            ///< scanned and registered as `flashtwin run` does (planned views)
 };
 
 void check_scenario(const Case& c) {
   if (std::getenv("FT_DEBUG")) spdlog::set_level(spdlog::level::debug);
   auto sc = pipeline::load_scenario(ftest::source_path("scenarios/" + c.scenario + ".yaml"));
   if (c.seed >= 0) pipeline::set_seed(sc, static_cast<std::uint64_t>(c.seed));
-  const auto setup = pipeline::setup_cell(sc);
   const std::string dir = ftest::temp_dir("reg_" + c.scenario);
-  const auto files = sim::write_cell(sc.robot, setup.spec, setup.casting, dir);
-  const auto scan = sim::scan_cell(files.mjcf, setup.casting, sc.scan, setup.spec.X_WM, setup.spec.X_WM);
-  const auto target = ModelTarget::from_mesh(setup.casting.nominal);
-  RegistrationParams p;
-  p.remove_support_plane = true;
-  p.viewpoint = Vec3::Zero();  // the sensors look along +z of {M} from near its origin
-  const RegistrationResult r = register_scan(scan.result.cloud_M, *target, p);
+  RegistrationResult r;
+  Pose X_CM;
+  std::shared_ptr<const ModelTarget> target;
+  if (c.as_run) {
+    const auto ss = pipeline::scan_scenario(sc, dir, 2);
+    target = ModelTarget::from_mesh(ss.setup.casting.nominal);
+    r = register_scan(ss.scan.result.cloud_M, *target, pipeline::cell_registration_params());
+    X_CM = ss.setup.spec.X_WC.inverse() * ss.scan.X_WM_true;
+  } else {
+    const auto setup = pipeline::setup_cell(sc);
+    const auto files = sim::write_cell(sc.robot, setup.spec, setup.casting, dir);
+    const auto scan = sim::scan_cell(files.mjcf, setup.casting, sc.scan, setup.spec.X_WM, setup.spec.X_WM);
+    target = ModelTarget::from_mesh(setup.casting.nominal);
+    RegistrationParams p;
+    p.remove_support_plane = true;
+    p.viewpoint = Vec3::Zero();  // the sensors look along +z of {M} from near its origin
+    r = register_scan(scan.result.cloud_M, *target, p);
+    X_CM = setup.spec.X_WC.inverse() * setup.spec.X_WM;
+  }
   ASSERT_TRUE(r.ran) << r.message;
-  const Pose X_CM = setup.spec.X_WC.inverse() * setup.spec.X_WM;
   const double deg = rotation_distance(r.T_target_source.linear(), X_CM.linear()) * 180 / M_PI;
   // Translation error at the part: the mean displacement of the model points.
   double mm = 0;
@@ -71,6 +83,13 @@ TEST(CastingRegistration, PlateDoesNotSlideAlongItsLongAxis) {
 // safety property: accurate, or refused.
 TEST(CastingRegistration, RoundFlangeIsAccurateOrRefused) {
   check_scenario({"round_flange", 0.05, 0.02, false});
+}
+// Scanned as `flashtwin run` scans them (planned views), two seeds where a pose turned by a
+// bolt-hole pitch explained more points than the true one (its rim and top face explain points
+// near their edges by chance): 6002 was refused as ambiguous, 6006 registered 90° off and
+// refused. The points lying far from the other pose's model (the flat) decide for the truth.
+TEST(CastingRegistration, RoundFlangeIsDecidedByItsFlatNotByTheMostPointsExplained) {
+  for (const long long seed : {6002LL, 6006LL}) check_scenario({"round_flange", 0.05, 0.02, true, seed, true});
 }
 TEST(CastingRegistration, Housing) { check_scenario({"housing", 0.05, 0.02}); }
 TEST(CastingRegistration, TiltedPlate) { check_scenario({"tilted", 0.05, 0.02}); }
