@@ -1007,6 +1007,7 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   struct Weak {
     Vec3 dir = Vec3::UnitX();
     double ratio = 1;
+    double sigma = 0;  // [m] robust residual scale of the last pass
   };
   auto polish = [&](Pose& T) {
     Weak weak;
@@ -1034,6 +1035,7 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
       if (valid.size() < 10) break;
       std::nth_element(valid.begin(), valid.begin() + static_cast<long>(valid.size() / 2), valid.end());
       const double sigma = 1.4826 * valid[valid.size() / 2];
+      weak.sigma = sigma;
       // Graduated robust weights (Geman-McClure): the scale starts at the fine voxel, so
       // features a millimetre or two off still steer the pose, and halves each pass down to
       // 3.5 σ̂, where flashes and mixed points no longer count.
@@ -1074,6 +1076,56 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
     }
     return weak;
   };
+  // Along a weakly constrained direction the robust polish can stop with the few surfaces that
+  // face it a few tenths of a millimetre off: its weights treat them as outliers by then, and
+  // the rest of the part does not care. The profile of those surfaces' sharp inliers (residual
+  // within 3 σ̂, at least 0.05 mm) over offsets along the direction shows where they agree;
+  // the pose moves to its peak. The peak must stand out of the profile (the highest count
+  // more than 3 bands away, over the peak's): otherwise the scan does not fix the pose along
+  // that direction, and the verdict says so.
+  struct WeakProfile {
+    double offset = 0;      // [m] taken
+    double peak_ratio = 1;  // peak count over the highest count away from it
+  };
+  bool determined = true;
+  auto settle_along = [&](Pose& T, const Vec3& dir, double sigma) {
+    const double band = std::max(0.05e-3, 3 * sigma), step = band / 4, reach = 8 * band;
+    const auto sharp_count = [&](double d) {
+      const Eigen::Matrix3f R = T.linear().cast<float>();
+      const Vec3f t = (T.translation() + d * dir).cast<float>();
+      const Vec3f w = dir.cast<float>();
+      const auto n = static_cast<long>(fine.size());
+      std::vector<char> hit(fine.size(), 0);
+#pragma omp parallel for schedule(static) if (n >= 8192)
+      for (long i = 0; i < n; ++i) {
+        std::uint32_t j;
+        const Vec3f q = R * fine.points[i] + t;
+        if (!tgt.nearest_in_band(q, j) || std::abs(tgt.dense.normals[j].dot(w)) < 0.5f) continue;
+        hit[i] = std::abs((tgt.dense.points[j] - q).dot(tgt.dense.normals[j])) < static_cast<float>(band);
+      }
+      return static_cast<double>(std::count(hit.begin(), hit.end(), 1));
+    };
+    const auto m = static_cast<int>(std::lround(reach / step));
+    std::vector<double> prof(static_cast<std::size_t>(2 * m + 1));
+    for (int k = -m; k <= m; ++k) prof[static_cast<std::size_t>(k + m)] = sharp_count(k * step);
+    const auto top = static_cast<int>(std::max_element(prof.begin(), prof.end()) - prof.begin()) - m;
+    double away = 0;
+    for (int k = -m; k <= m; ++k)
+      if (std::abs(k - top) * step > 3 * band) away = std::max(away, prof[static_cast<std::size_t>(k + m)]);
+    WeakProfile wp;
+    const double peak = prof[static_cast<std::size_t>(top + m)];
+    wp.peak_ratio = (peak + 5) / (away + 5);
+    // Move only when the peak clearly beats where the polish stopped.
+    if (top != 0 && peak > 1.2 * prof[static_cast<std::size_t>(m)]) {
+      wp.offset = top * step;
+      T.translation() += wp.offset * dir;
+    }
+    spdlog::debug("register: along [{:.3f} {:.3f} {:.3f}] sharp inliers (band {:.3f} mm) peak {:.0f} "
+                  "at {:.3f} mm (polish {:.0f}), highest away {:.0f}: moved {:.3f} mm, peak ratio {:.2f}",
+                  dir.x(), dir.y(), dir.z(), band * 1e3, peak, top * step * 1e3, prof[static_cast<std::size_t>(m)],
+                  away, wp.offset * 1e3, wp.peak_ratio);
+    return wp;
+  };
   if (p.point_to_plane) {
     const Weak weak = polish(best.T);
     // A plate's long axis can rest on a few features (ends behind fixture blocks, holes): the
@@ -1097,12 +1149,16 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
                     "best offset {:.2f} mm explains {:.0f} vs {:.0f}",
                     weak.dir.x(), weak.dir.y(), weak.dir.z(), weak.ratio, best_offset * 1e3,
                     best_count, base_count);
+      Weak last = weak;
       if (best_count > base_count * (1 + p.weak_direction_gain)) {
         Pose S = Pose::Identity();
         S.translation() = best_offset * weak.dir;
         best.T = S * best.T;
-        polish(best.T);
+        last = polish(best.T);
       }
+      const WeakProfile wp = settle_along(best.T, weak.dir, last.sigma);
+      res.weak_direction_peak = wp.peak_ratio;
+      determined = wp.peak_ratio >= p.weak_direction_peak;
     }
   }
   const auto t_icp = std::chrono::steady_clock::now();
@@ -1148,7 +1204,7 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   const bool fit_ok = res.fitness >= p.min_fitness;
   const bool rmse_ok = res.rmse <= diag * p.max_rmse;
   const bool unique = res.ambiguity <= p.max_ambiguity;
-  res.confident = fit_ok && rmse_ok && unique;
+  res.confident = fit_ok && rmse_ok && unique && determined;
   if (!fit_ok)
     res.message = "low inlier fraction " + std::to_string(res.fitness) + " (need " +
                   std::to_string(p.min_fitness) + ")";
@@ -1157,6 +1213,10 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   else if (!unique)
     res.message = "ambiguous: a distinct pose fits almost as well (symmetric part?), ambiguity " +
                   std::to_string(res.ambiguity);
+  else if (!determined)
+    res.message = "weakly constrained: the surfaces facing the weakest translation direction do "
+                  "not agree on one position along it (peak ratio " +
+                  std::to_string(res.weak_direction_peak) + ")";
   else
     res.message = "ok";
   return finish();

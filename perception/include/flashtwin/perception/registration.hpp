@@ -17,6 +17,9 @@ struct RegistrationResult {
   double fitness = 0;          ///< inlier fraction of the source [0, 1]
   double rmse = 0;             ///< inlier RMSE [m]
   double ambiguity = 0;        ///< score of the best distinct alternative / best score [0, 1]
+  /// Along a weakly constrained translation direction (if any): the facing surfaces' sharp
+  /// inlier peak over the highest count away from it (1: no weak direction was examined).
+  double weak_direction_peak = 1;
   double time_s = 0;           ///< wall time of the call
   std::string stage;           ///< which global stage produced the pose ("pca", "4pcs", ...)
   std::string message;         ///< why not confident / what failed
@@ -99,6 +102,10 @@ struct RegistrationParams {
   double weak_direction_ratio = 0.1;
   /// ... and the best offset is taken when it explains this share more points than the polish.
   double weak_direction_gain = 0.01;
+  /// Then the pose settles where the surfaces facing that direction agree (their sharp inliers
+  /// peak); the pose is confident only when that peak is this many times the highest count
+  /// more than three bands away from it (1: no check).
+  double weak_direction_peak = 1.5;
 };
 
 /// The project's registration: preprocessing, PCA alignment (4 proper rotations), 4PCS, ICP
