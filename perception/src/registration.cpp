@@ -827,28 +827,33 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
       refine_and_score(T, "pca");
     }
   }
-  const double pca_best =
-      hyps.empty() ? 0.0 : std::max_element(hyps.begin(), hyps.end(), [](const auto& a, const auto& b) {
-                             return a.score < b.score;
-                           })->score;
-  if (p.use_4pcs && pca_best < p.pca_accept_fitness) {
+  auto by_score = [](const auto& a, const auto& b) { return a.score > b.score; };
+  auto second_distinct = [&](const std::vector<Hypothesis>& h) {
+    for (std::size_t k = 1; k < h.size(); ++k)
+      if (distinct(h[k].T, h[0].T, diag)) return h[k].score;
+    return 0.0;
+  };
+  // A near-complete fit and no close rival: the coarse level is clear.
+  const auto is_clear = [&](const std::vector<Hypothesis>& h) {
+    return !h.empty() && h[0].score > 0.95 && second_distinct(h) < 0.8 * h[0].score;
+  };
+  std::sort(hyps.begin(), hyps.end(), by_score);
+  // 4PCS when PCA's best is poor, or when its ranking is not clear: on a part that is nearly
+  // symmetric about a turn (a housing whose walls sit off-centre on its flange), PCA's axes
+  // offer the turned pose that fits the walls, and the true pose lies too far from any PCA or
+  // sweep candidate for ICP to reach it.
+  if (p.use_4pcs && (hyps.empty() || hyps[0].score < p.pca_accept_fitness || !is_clear(hyps))) {
     for (const auto& h : four_pcs(global.points, tgt, p, rng)) refine_and_score(h.T, "4pcs");
   }
   if (hyps.empty()) {
     res.message = "no global alignment hypothesis (PCA and 4PCS disabled or failed)";
     return finish();
   }
-  auto by_score = [](const auto& a, const auto& b) { return a.score > b.score; };
   std::sort(hyps.begin(), hyps.end(), by_score);
-  auto second_distinct = [&](const std::vector<Hypothesis>& h) {
-    for (std::size_t k = 1; k < h.size(); ++k)
-      if (distinct(h[k].T, h[0].T, diag)) return h[k].score;
-    return 0.0;
-  };
   // Symmetry sweep: unless the coarse ranking is decisive (near-symmetric or partially seen
   // parts), also try the best pose turned about each principal axis of the model in 30° steps.
   // Skipped only when the coarse level is already clear: a near-complete fit and no close rival.
-  const bool clear = hyps[0].score > 0.95 && second_distinct(hyps) < 0.8 * hyps[0].score;
+  const bool clear = is_clear(hyps);
   {
     const Pose T_best = hyps[0].T;
     for (int axis = 0; axis < 3; ++axis)

@@ -227,6 +227,36 @@ void save_scan(const ScenarioScan& s, const std::string& dir, bool pcd) {
   save_ply((fs::path(s.files.truth) / "scan_labels.ply").string(), labelled);
 }
 
+namespace {
+
+// What the cell knows of its fixture (the locating blocks stand where the cell's design puts
+// them for the casting's nominal placement) removes their points before registration: a block's
+// top and faces beside a casting that is nearly symmetric about a turn (a housing's flange)
+// otherwise explain the turned pose's overhanging flange. Points inside a block grown by
+// `margin` (noise, calibration error) in {M}, with the calibrated mount X_WM. A randomly placed
+// casting has no fixture the cell could know: nothing is removed then.
+PointCloud without_fixture(const PointCloud& cloud_M, const Scenario& sc, const CellSetup& setup,
+                           double margin) {
+  if (sc.placement.random) return cloud_M;
+  const std::vector<sim::FixtureBlock> blocks =
+      setup.spec.fixtures.empty() ? sim::fixture_blocks(setup.spec, setup.casting.nominal)
+                                  : setup.spec.fixtures;
+  std::vector<Pose> X_FM;
+  for (const auto& b : blocks) X_FM.push_back(b.X_WF.inverse() * setup.spec.X_WM);
+  PointCloud out;
+  for (const auto& p : cloud_M.points) {
+    bool inside = false;
+    for (std::size_t k = 0; k < blocks.size() && !inside; ++k) {
+      const Vec3 q = X_FM[k] * p.cast<double>();
+      inside = (q.cwiseAbs() - blocks[k].half_size).maxCoeff() <= margin;
+    }
+    if (!inside) out.points.push_back(p);
+  }
+  return out;
+}
+
+}  // namespace
+
 RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   const auto t_total = Clock::now();
   // Perception's parallel loops use this run's thread budget (a sweep runs each casting on
@@ -271,7 +301,8 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   progress(opt, "registration", 0.15);
   const auto t_perc = Clock::now();
   const auto target = perception::ModelTarget::from_mesh_cached(setup.casting.nominal);
-  out.registration = perception::register_scan(cloud_M, *target, cell_registration_params());
+  out.registration = perception::register_scan(without_fixture(cloud_M, sc, setup, 0.003), *target,
+                                                cell_registration_params());
   const auto& reg = out.registration;
   const Pose X_CM_est = reg.T_target_source;
   // Truth: where {M} really is relative to {C} (the calibrated X_WM is what perception used;
