@@ -257,6 +257,10 @@ PointCloud without_fixture(const PointCloud& cloud_M, const Scenario& sc, const 
 
 }  // namespace
 
+PointCloud registration_cloud(const Scenario& sc, const ScenarioScan& ss) {
+  return without_fixture(ss.scan.result.cloud_M, sc, ss.setup, 0.003);
+}
+
 RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   const auto t_total = Clock::now();
   // Perception's parallel loops use this run's thread budget (a sweep runs each casting on
@@ -301,8 +305,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   progress(opt, "registration", 0.15);
   const auto t_perc = Clock::now();
   const auto target = perception::ModelTarget::from_mesh_cached(setup.casting.nominal);
-  out.registration = perception::register_scan(without_fixture(cloud_M, sc, setup, 0.003), *target,
-                                                cell_registration_params());
+  out.registration = perception::register_scan(registration_cloud(sc, ss), *target, cell_registration_params());
   const auto& reg = out.registration;
   const Pose X_CM_est = reg.T_target_source;
   // Truth: where {M} really is relative to {C} (the calibrated X_WM is what perception used;

@@ -57,6 +57,11 @@ struct ScenarioScan {
 /// scan saw (`scan.unseen_parting_fraction`, see unseen_root_fraction).
 double unseen_parting_fraction(const ScenarioScan& scan);
 
+/// The scan registration sees: the scan in {M} without the points on the cell's fixture
+/// blocks (grown by 3 mm), which the cell knows for a casting at its nominal placement; the
+/// whole scan for a randomly placed casting.
+PointCloud registration_cloud(const Scenario& sc, const ScenarioScan& scan);
+
 /// Registration parameters for a cell scan: the table removed, normals facing {M}'s origin.
 perception::RegistrationParams cell_registration_params();
 
