@@ -92,8 +92,9 @@ Plane fit_plane(const std::vector<Vec3>& pts) {
 // Support planes (table, fixture faces): RANSAC planes through many candidates with the whole
 // CAD model on one side; a fin's plane cuts through the part, so it is never taken for one.
 // A support removes its own points and the candidates behind it, but only over its footprint:
-// the 2 mm cells of the plane (and their neighbours) where its inliers lie on a surface along
-// the plane. A fixture's face is a few centimetres wide; behind its plane beyond its edges
+// the 2 mm cells of the plane (and two cells round them) where its inliers lie on a surface along
+// the plane (neighbourhood normal within 45° of it: under 5× scanner noise a 30° test left holes
+// in a fixture's footprint whose points became false flash). A fixture's face is a few centimetres wide; behind its plane beyond its edges
 // stand fins of the casting (past the outer face of a clamp block beside the part), and a fin
 // crossing the plane leaves inliers on a strip across it whose neighbourhood is no surface
 // along the plane. Returns the candidates still alive.
@@ -189,7 +190,7 @@ std::vector<bool> support_plane_mask(const std::vector<Vec3>& pc,
       for (const auto& [j, d2] : nb) local.push_back(cf[j].cast<double>());
       const Plane lp = fit_plane(local);
       const bool thin = local.size() < 5 || lp.spread(1) < 0.05 * lp.spread(2);
-      if (thin || std::abs(lp.n.dot(best.n)) > std::cos(M_PI / 6)) footprint.insert(key);
+      if (thin || std::abs(lp.n.dot(best.n)) > std::cos(M_PI / 4)) footprint.insert(key);
     }
     const double side = smin > -P.support_side_tolerance ? 1.0 : -1.0;
     std::size_t dropped = 0;
@@ -197,8 +198,8 @@ std::vector<bool> support_plane_mask(const std::vector<Vec3>& pc,
       if (!alive[c] || side * best.dist(pc[cand[c]]) >= P.support_distance) continue;
       const auto [iu, iv] = cell_of(pc[cand[c]]);
       bool on = false;
-      for (std::int64_t du = -1; du <= 1 && !on; ++du)
-        for (std::int64_t dv = -1; dv <= 1 && !on; ++dv) on = footprint.count({iu + du, iv + dv}) > 0;
+      for (std::int64_t du = -2; du <= 2 && !on; ++du)
+        for (std::int64_t dv = -2; dv <= 2 && !on; ++dv) on = footprint.count({iu + du, iv + dv}) > 0;
       if (!on) continue;
       alive[c] = false;
       ++dropped;
@@ -932,11 +933,10 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
     for (auto s : cl) {
       const auto k = cand[live[s]];
       pts.push_back(pc[k]);
-      touching += dist[k] < std::min(hidden_limit, far);
+      touching += dist[k] < inner_limit;
     }
     // A flash grows out of the casting: a cluster that never comes near the surface is
-    // something else (fixture, robot, stray points). Near: within the hidden-root band, where
-    // a fin whose root a wall hides along its whole length still reaches.
+    // something else (fixture, robot, stray points).
     if (touching < 3) {
       spdlog::debug("detect: cluster of {} points never near the CAD: dropped", cl.size());
       continue;

@@ -427,26 +427,6 @@ TEST(FlashDetection, FinPastTheOuterFaceOfAFixtureBesideItStaysFlash) {
     for (const auto& p : path.points_C) EXPECT_FALSE(clamp.contains(p)) << p.transpose();
 }
 
-TEST(FlashDetection, FinWhoseRootIsHiddenAlongItsWholeLengthIsStillFound) {
-  // No point within 1.5 mm of the wall comes back along the whole fin (a wall above hid its
-  // root from every view): the fin never comes within the inner band of the casting, yet it
-  // reaches into the hidden-root band, and its edge nearest the wall stands for the root.
-  const Part part = straight_fin_part();
-  const PointCloud full = sample(part, 0.0001, 0.03e-3, 23);
-  PointCloud scan_C;
-  for (const auto& p : full.points)
-    if (!(p.y() > 0.03f && p.y() < 0.0315f)) scan_C.points.push_back(p);
-  const MeshBvh cad(part.cad());
-  const Vec3 a(-0.04, 0.03, 0.015), b(0.04, 0.03, 0.015);
-  DetectionParams off;
-  off.hidden_root_band = 0;
-  const auto r_off = detect_flash(to_scanner(scan_C), cad, kX_CM, off);
-  const auto r_on = detect_flash(to_scanner(scan_C), cad, kX_CM);
-  ASSERT_TRUE(r_on.ran) << r_on.message;
-  EXPECT_LT(length_along(r_off, a, b, 0.3e-3), 0.01);
-  EXPECT_GT(length_along(r_on, a, b, 0.3e-3), 0.07);
-}
-
 TEST(FlashDetection, NoFlashNothingToGrind) {
   Part part = straight_fin_part();
   part.fins.clear();
