@@ -55,11 +55,12 @@ void read_expect_sweep(const ConfigNode& ex, SweepExpectation& out) {
   for (const auto& key : ex.keys()) {
     if (key == "seeds" || key == "pass_rate") continue;
     const ConfigNode m = ex.at(key);
-    if (!m.is_map()) m.fail("expected {min|p10|p50|p90|max: [min, max]}, got " + m.describe());
+    if (!m.is_map()) m.fail("expected {mean|min|p10|p50|p90|max: [min, max]}, got " + m.describe());
     for (const auto& stat : m.keys()) {
       const ConfigNode v = m.at(stat);
-      if (stat != "min" && stat != "p10" && stat != "p50" && stat != "p90" && stat != "max")
-        v.fail("expected a statistic min, p10, p50, p90 or max, got '" + stat + "'");
+      if (stat != "mean" && stat != "min" && stat != "p10" && stat != "p50" && stat != "p90" &&
+          stat != "max")
+        v.fail("expected a statistic mean, min, p10, p50, p90 or max, got '" + stat + "'");
       if (!v.is_sequence() || v.size() != 2) v.fail("expected [min, max] (null for an open end)");
       SweepBound b;
       b.key = key;

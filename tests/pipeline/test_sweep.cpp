@@ -87,6 +87,10 @@ TEST(Scenario, ExpectSweepBlockIsReadAndChecked) {
   ASSERT_EQ(sc.expect_sweep.bounds.size(), 2u);
   EXPECT_EQ(sc.expect_sweep.bounds[0].statistic, "p50");
   EXPECT_DOUBLE_EQ(sc.expect_sweep.bounds[0].lo, 0.9);
+  // The mean (a share of runs for a 0/1 metric such as registration.confident).
+  const Scenario sm = load_scenario(scenario("  seeds: 1-8\n  registration.confident: {mean: [0.5, null]}\n"));
+  ASSERT_EQ(sm.expect_sweep.bounds.size(), 1u);
+  EXPECT_EQ(sm.expect_sweep.bounds[0].statistic, "mean");
   EXPECT_THROW(load_scenario(scenario("  pass_rate: 0.5\n")), ConfigError);  // no seeds
   EXPECT_THROW(load_scenario(scenario("  seeds: 5-1\n")), ConfigError);
   EXPECT_THROW(load_scenario(scenario("  seeds: 1-8\n  pass_rate: 2\n")), ConfigError);
