@@ -478,7 +478,9 @@ TEST(GrindPlanner, LeadInAndOutKeepTheBurrOffTheWallWhileItPlungesAndLifts) {
                                SampleKind::kCut,      SampleKind::kRetract,  SampleKind::kRetract};
   for (std::size_t k = 0; k < 6; ++k) {
     EXPECT_EQ(r.segments[k].kind, kinds[k]) << k;
-    if (k > 0) EXPECT_EQ(r.segments[k - 1].last_sample, r.segments[k].first_sample) << k;
+    if (k > 0) {
+      EXPECT_EQ(r.segments[k - 1].last_sample, r.segments[k].first_sample) << k;
+    }
   }
   EXPECT_EQ(r.segments[2].feed, P.feed);
   EXPECT_EQ(r.segments[4].feed, P.feed);
