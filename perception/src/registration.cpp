@@ -272,7 +272,6 @@ EvidenceVerdict decide_by_evidence(const std::vector<std::vector<char>>& expl, s
       }
     if (!changed) break;
   }
-  v.ambiguity = 0;
   for (std::size_t k = 0; k < expl.size(); ++k) {
     if (k == v.winner) continue;
     const double w = strong(v.winner, k), r = strong(k, v.winner);
