@@ -7,6 +7,7 @@
 #include <cmath>
 #include <limits>
 #include <map>
+#include <memory>
 #include <numeric>
 #include <set>
 #include <queue>
@@ -235,6 +236,57 @@ constexpr double kMinHoleArc = M_PI / 4;
 
 int close_hole_arc(FlashPath& path, const MeshBvh& cad_C, const Vec3& w, double step,
                    double fit_tol, double min_swept = M_PI);
+
+// The CAD's section by the plane w·x = h within a box: the segments where its triangles cross
+// the plane, each with its triangle's normal. A fin's root is where its mid-plane meets the
+// wall, so the root lies on this section whatever the wall's slope or curvature.
+struct PlaneSection {
+  std::vector<std::pair<Vec3, Vec3>> segments;
+  std::vector<Vec3> normals;
+
+  PlaneSection(const TriangleMesh& cad, const Vec3& w, double h, const Vec3& lo, const Vec3& hi) {
+    for (std::size_t t = 0; t < cad.triangles.size(); ++t) {
+      const auto& tri = cad.triangles[t];
+      Vec3 v[3];
+      double d[3];
+      bool inside = false;
+      for (int k = 0; k < 3; ++k) {
+        v[k] = cad.vertices[static_cast<std::size_t>(tri[k])];
+        d[k] = w.dot(v[k]) - h;
+        inside = inside || ((v[k].array() >= lo.array()).all() && (v[k].array() <= hi.array()).all());
+      }
+      if (!inside) continue;
+      std::vector<Vec3> cut;  // where the edges cross the plane
+      for (int k = 0; k < 3; ++k) {
+        const int j = (k + 1) % 3;
+        if ((d[k] < 0) != (d[j] < 0)) cut.push_back(v[k] + (d[k] / (d[k] - d[j])) * (v[j] - v[k]));
+      }
+      if (cut.size() != 2) continue;
+      segments.emplace_back(cut[0], cut[1]);
+      normals.push_back(cad.triangle_normal(t));
+    }
+  }
+
+  // The section point nearest p within max_d, and its wall normal; false when there is none.
+  bool closest(const Vec3& p, double max_d, Vec3& q, Vec3& n) const {
+    double best = max_d * max_d;
+    bool found = false;
+    for (std::size_t i = 0; i < segments.size(); ++i) {
+      const auto& [a, b] = segments[i];
+      const Vec3 ab = b - a;
+      const double u = std::clamp(ab.dot(p - a) / std::max(ab.squaredNorm(), 1e-30), 0.0, 1.0);
+      const Vec3 c = a + u * ab;
+      const double d2 = (c - p).squaredNorm();
+      if (d2 < best) {
+        best = d2;
+        q = c;
+        n = normals[i];
+        found = true;
+      }
+    }
+    return found;
+  }
+};
 
 // A closed hole loop onto its fitted circle: each point keeps its angle, its radius becomes the
 // circle's and its height along `w` a moving average over ±3 points. The burr's centre runs on
@@ -1099,6 +1151,20 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       if (wk.shift) p += (wk.mid - wk.w.dot(p)) * wk.w;
       return p;
     };
+    // With the mid-plane known, the root goes onto the CAD's section by it: moving a wall point
+    // along the height direction keeps it on the wall only where the wall is parallel to that
+    // direction; on a sloped or domed wall it would stand off the steel or in it.
+    const double section_reach = 3e-3;
+    std::unique_ptr<PlaneSection> section;
+    if (wk.shift && !wk.inner.empty()) {
+      Vec3 box_lo = wk.inner.front(), box_hi = box_lo;
+      for (const auto& q : wk.inner) {
+        box_lo = box_lo.cwiseMin(q);
+        box_hi = box_hi.cwiseMax(q);
+      }
+      const Vec3 margin = Vec3::Constant(2 * section_reach);
+      section = std::make_unique<PlaneSection>(cad, wk.w, wk.mid, box_lo - margin, box_hi + margin);
+    }
     PointCloud ic;
     for (std::size_t i = 0; i < wk.inner.size(); ++i) {
       ic.points.push_back(to_mid(wk.inner[i]).cast<float>());
@@ -1167,8 +1233,14 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
           ++cnt;
         }
         const auto cp = cad_C.closest(acc / cnt);
-        path.points_C.push_back(to_mid(cp.point));
-        path.normals_C.push_back(cad.triangle_normal(static_cast<std::size_t>(std::max(0, cp.triangle))));
+        Vec3 root = to_mid(cp.point), normal = cad.triangle_normal(static_cast<std::size_t>(std::max(0, cp.triangle)));
+        Vec3 q, nq;
+        if (section && section->closest(root, section_reach, q, nq)) {
+          root = q;
+          normal = nq;
+        }
+        path.points_C.push_back(root);
+        path.normals_C.push_back(normal);
       }
       // A fin stands out of its wall, so its normal is square to the wall normals along the
       // root: where the wall curves (the normals span a plane: a hole, a rounded corner) it is

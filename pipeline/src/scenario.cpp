@@ -283,7 +283,7 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
   try {
     cp.family = sim::family_from_string(casting.get_string("family"));
   } catch (const ArgumentError&) {
-    casting.at("family").fail("expected flanged_plate, round_flange, housing or mesh, got '" +
+    casting.at("family").fail("expected flanged_plate, round_flange, housing, cover or mesh, got '" +
                               casting.get_string("family") + "'");
   }
   cp.seed = static_cast<std::uint64_t>(casting.get_int("seed", 0, (1LL << 62),

@@ -20,8 +20,9 @@ CastingFamily family_from_string(const std::string& s) {
   if (s == "flanged_plate") return CastingFamily::kFlangedPlate;
   if (s == "round_flange") return CastingFamily::kRoundFlange;
   if (s == "housing") return CastingFamily::kHousing;
+  if (s == "cover") return CastingFamily::kCover;
   if (s == "mesh") return CastingFamily::kMesh;
-  throw ArgumentError("casting.family: expected flanged_plate, round_flange, housing or mesh, got '" +
+  throw ArgumentError("casting.family: expected flanged_plate, round_flange, housing, cover or mesh, got '" +
                       s + "'");
 }
 
@@ -30,6 +31,7 @@ std::string to_string(CastingFamily f) {
     case CastingFamily::kFlangedPlate: return "flanged_plate";
     case CastingFamily::kRoundFlange: return "round_flange";
     case CastingFamily::kHousing: return "housing";
+    case CastingFamily::kCover: return "cover";
     case CastingFamily::kMesh: return "mesh";
   }
   return "?";
@@ -140,6 +142,29 @@ class Builder {
         mesh_.triangles.emplace_back(idx[t[0]], idx[t[1]], idx[t[2]]);
       else
         mesh_.triangles.emplace_back(idx[t[0]], idx[t[2]], idx[t[1]]);
+    }
+  }
+  // Surface of revolution about the vertical axis through c, solid inside: `profile` holds
+  // (radius, z) from the bottom rim upwards; a last point on the axis (radius 0) closes the
+  // surface there. Ring vertices lie where circle(c, r, ·) with n points puts them, so a cap
+  // whose hole is that circle welds to the bottom ring.
+  void revolve(const Vec2& c, const std::vector<Vec2>& profile, int n) {
+    std::vector<std::vector<int>> rings;
+    for (const auto& rz : profile) {
+      std::vector<int> ring;
+      for (int i = 0; i < n; ++i) {
+        const double a = 2 * M_PI * i / n;
+        ring.push_back(v({c.x() + rz.x() * std::cos(a), c.y() + rz.x() * std::sin(a)}, rz.y()));
+      }
+      rings.push_back(std::move(ring));
+    }
+    for (std::size_t k = 0; k + 1 < rings.size(); ++k) {
+      const bool apex = profile[k + 1].x() == 0;
+      for (int i = 0; i < n; ++i) {
+        const int j = (i + 1) % n;
+        mesh_.triangles.emplace_back(rings[k][i], rings[k][j], rings[k + 1][j]);
+        if (!apex) mesh_.triangles.emplace_back(rings[k][i], rings[k + 1][j], rings[k + 1][i]);
+      }
     }
   }
   TriangleMesh finish() {
@@ -302,6 +327,90 @@ Family housing(Rng& rng, double err) {
   f.parting_height = Tb / 2;
   f.description = "housing " + mm(L) + " x " + mm(W) + " mm flange " + mm(Tb) + " mm, walls " +
                   mm(tw) + " x " + mm(Hw) + " mm, 6 bolt holes d" + mm(2 * rh);
+  return f;
+}
+
+// A pump or gearbox cover: a rounded-rectangle flange with six bolt holes carrying, off-centre,
+// a round body as foundries make it: a concave fillet at the flange, a drafted wall (1-3°, the
+// draft that lets the pattern leave the sand) and a spherical dome. The parting plane runs
+// across the dome, so the parting-line fin stands on a curved, sloped wall.
+Family cover(Rng& rng, double err) {
+  const double L = rng.uniform(0.2, 0.34);
+  const double W = rng.uniform(0.65, 0.85) * L;
+  const double T = rng.uniform(0.012, 0.02);
+  const double rc = rng.uniform(0.01, 0.025);
+  const double rh = rng.uniform(0.0045, 0.007);
+  const double m = rh + 0.008;  // bolt-hole centre to flange edge
+  // The body stands off-centre along x (no half-turn symmetry) and clears the bolt holes at the
+  // flange's ends and the long edges by 4 mm (fillet included).
+  const double dx = (rng.uniform(0, 1) < 0.5 ? -1 : 1) * rng.uniform(0.04, 0.1) * L;
+  const double rf = rng.uniform(0.003, 0.006);  // fillet radius
+  const double base_max = std::min(L / 2 - m - std::abs(dx) - rh - 0.004, W / 2 - 0.006);
+  const double Rb = rng.uniform(0.7, 1.0) * base_max - rf;  // wall radius at the fillet's top
+  FT_ASSERT(Rb > 0.02);
+  const double draft = rng.uniform(1.0, 3.0) * M_PI / 180;
+  const double Hw = rng.uniform(0.01, 0.03);  // drafted wall height
+  const double R1 = Rb - Hw * std::tan(draft);
+  const double Hd = rng.uniform(0.35, 0.8) * R1;  // dome height
+  const double Rs = (R1 * R1 + Hd * Hd) / (2 * Hd);  // dome sphere radius
+  const double z0 = T + rf, z1 = z0 + Hw, zc = z1 + Hd - Rs;  // wall foot, dome foot, sphere centre
+
+  // Profile (radius, z) from the fillet's foot on the flange up to the dome's apex.
+  std::vector<Vec2> profile;
+  const int nf = arc_segments(rf, M_PI / 2, err);
+  for (int i = 0; i <= nf; ++i) {  // concave quarter circle about (Rb + rf, T + rf)
+    const double a = -M_PI / 2 - (M_PI / 2) * i / nf;
+    profile.emplace_back(Rb + rf + rf * std::cos(a), T + rf + rf * std::sin(a));
+  }
+  profile.front() = {Rb + rf, T};  // exactly on the foot circle of the flange's top cap
+  profile.back() = {Rb, z0};
+  profile.emplace_back(R1, z1);  // the drafted wall: a cone
+  const double phi1 = std::asin(R1 / Rs);
+  const int nd = arc_segments(Rs, phi1, err);
+  for (int i = 1; i <= nd; ++i) {
+    const double phi = phi1 * (1 - double(i) / nd);
+    profile.emplace_back(Rs * std::sin(phi), zc + Rs * std::cos(phi));
+  }
+  profile.back() = {0, z1 + Hd};
+
+  const Vec2 bc(dx, 0);
+  const Loop outline = rounded_rect({0, 0}, L, W, rc, err);
+  const Loop foot = circle(bc, Rb + rf, err);
+  std::vector<Loop> holes;
+  for (int sx = -1; sx <= 1; sx += 2) {
+    for (int sy = -1; sy <= 1; sy += 2) holes.push_back(circle({sx * (L / 2 - m), sy * (W / 2 - m)}, rh, err));
+    holes.push_back(circle({sx * (L / 2 - m), 0}, rh, err));
+  }
+  Builder b;
+  b.cap(outline, holes, 0, false);
+  b.walls(outline, 0, T);
+  for (const auto& h : holes) b.walls(reversed(h), 0, T);
+  std::vector<Loop> top_holes = holes;
+  top_holes.push_back(foot);
+  b.cap(outline, top_holes, T, true);
+  b.revolve(bc, profile, static_cast<int>(foot.size()));
+  Family f;
+  f.mesh = b.finish();
+  // Volume: the flange, the fillet ring (Simpson's rule over z of π r(z)²), the cone frustum and
+  // the spherical cap.
+  double fillet = 0;
+  const int ns = 2000;
+  for (int i = 0; i <= ns; ++i) {
+    const double u = double(i) / ns, z = rf * u;  // height above the flange
+    const double r = Rb + rf - std::sqrt(std::max(0.0, rf * rf - (z - rf) * (z - rf)));
+    const double w = (i == 0 || i == ns) ? 1 : (i % 2 ? 4 : 2);
+    fillet += w * M_PI * r * r;
+  }
+  fillet *= rf / ns / 3;
+  f.analytic_volume = (rounded_rect_area(L, W, rc) - 6 * M_PI * rh * rh) * T + fillet +
+                      M_PI * Hw * (Rb * Rb + Rb * R1 + R1 * R1) / 3 + M_PI * Hd * Hd * (3 * Rs - Hd) / 3;
+  // Across the dome, where its wall slopes 20-60° off the vertical.
+  f.parting_height = z1 + rng.uniform(0.15, 0.5) * Hd;
+  char deg[16];
+  std::snprintf(deg, sizeof deg, "%.1f", draft * 180 / M_PI);
+  f.description = "cover " + mm(L) + " x " + mm(W) + " x " + mm(T) + " mm flange, 6 bolt holes d" + mm(2 * rh) +
+                  ", body d" + mm(2 * Rb) + " (fillet r" + mm(rf) + ", wall " + mm(Hw) + " mm at " + std::string(deg) +
+                  "° draft, dome " + mm(Hd) + " mm high)";
   return f;
 }
 
@@ -605,6 +714,7 @@ Casting make_casting(const CastingParams& params) {
     case CastingFamily::kFlangedPlate: f = flanged_plate(rng, params.chordal_error); break;
     case CastingFamily::kRoundFlange: f = round_flange(rng, params.chordal_error); break;
     case CastingFamily::kHousing: f = housing(rng, params.chordal_error); break;
+    case CastingFamily::kCover: f = cover(rng, params.chordal_error); break;
     case CastingFamily::kMesh: {
       if (params.mesh_path.empty())
         throw ArgumentError("casting.mesh: expected a mesh file for family 'mesh', got none");

@@ -60,7 +60,7 @@ CastingParams params_for(CastingFamily f, std::uint64_t seed) {
 }
 
 const CastingFamily kFamilies[] = {CastingFamily::kFlangedPlate, CastingFamily::kRoundFlange,
-                                   CastingFamily::kHousing};
+                                   CastingFamily::kHousing, CastingFamily::kCover};
 
 }  // namespace
 

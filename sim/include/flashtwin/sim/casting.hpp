@@ -15,10 +15,11 @@ enum class CastingFamily {
   kFlangedPlate,  ///< rounded plate with bolt holes and ribs (bracket), 160–340 mm long
   kRoundFlange,   ///< round flange with hub, bore and bolt circle, 120–400 mm diameter
   kHousing,       ///< box housing: base flange with bolt holes, walls around a pocket
+  kCover,         ///< pump/gearbox cover: flange with an off-centre filleted, drafted, domed body
   kMesh,          ///< a user's mesh file (STL/OBJ/PLY)
 };
 
-/// Parses "flanged_plate", "round_flange", "housing", "mesh". @throws ArgumentError.
+/// Parses "flanged_plate", "round_flange", "housing", "cover", "mesh". @throws ArgumentError.
 CastingFamily family_from_string(const std::string& s);
 std::string to_string(CastingFamily f);
 
