@@ -167,6 +167,16 @@ class Builder {
       }
     }
   }
+  // A plate from z = 0 to t: `outline` (CCW) with through `holes`; its top cap also leaves
+  // `on_top` open, the footprints of what stands on the plate.
+  void plate(const Loop& outline, const std::vector<Loop>& holes, double t, const std::vector<Loop>& on_top) {
+    cap(outline, holes, 0, false);
+    walls(outline, 0, t);
+    for (const auto& h : holes) walls(reversed(h), 0, t);
+    std::vector<Loop> top_holes = holes;
+    top_holes.insert(top_holes.end(), on_top.begin(), on_top.end());
+    cap(outline, top_holes, t, true);
+  }
   TriangleMesh finish() {
     weld_vertices(mesh_, 1e-12);
     return std::move(mesh_);
@@ -217,12 +227,7 @@ Family flanged_plate(Rng& rng, double err) {
   std::vector<Loop> ribs = {rect({0, yr1}, Lr, wr), rect({0, yr2}, Lr, wr)};
 
   Builder b;
-  b.cap(outline, holes, 0, false);
-  b.walls(outline, 0, T);
-  for (const auto& h : holes) b.walls(reversed(h), 0, T);
-  std::vector<Loop> top_holes = holes;
-  top_holes.insert(top_holes.end(), ribs.begin(), ribs.end());
-  b.cap(outline, top_holes, T, true);
+  b.plate(outline, holes, T, ribs);
   for (const auto& r : ribs) {
     b.walls(r, T, T + hr);
     b.cap(r, {}, T + hr, true);
@@ -308,12 +313,7 @@ Family housing(Rng& rng, double err) {
   for (int sy = -1; sy <= 1; sy += 2) holes.push_back(circle({0, sy * (W / 2 - m / 2)}, rh, err));
 
   Builder b;
-  b.cap(outline, holes, 0, false);
-  b.walls(outline, 0, Tb);
-  for (const auto& h : holes) b.walls(reversed(h), 0, Tb);
-  std::vector<Loop> top_holes = holes;
-  top_holes.push_back(outer);
-  b.cap(outline, top_holes, Tb, true);
+  b.plate(outline, holes, Tb, {outer});
   b.cap(inner, {}, Tb, true);  // pocket floor
   b.walls(outer, Tb, Tb + Hw);
   b.walls(reversed(inner), Tb, Tb + Hw);
@@ -382,12 +382,7 @@ Family cover(Rng& rng, double err) {
     holes.push_back(circle({sx * (L / 2 - m), 0}, rh, err));
   }
   Builder b;
-  b.cap(outline, holes, 0, false);
-  b.walls(outline, 0, T);
-  for (const auto& h : holes) b.walls(reversed(h), 0, T);
-  std::vector<Loop> top_holes = holes;
-  top_holes.push_back(foot);
-  b.cap(outline, top_holes, T, true);
+  b.plate(outline, holes, T, {foot});
   b.revolve(bc, profile, static_cast<int>(foot.size()));
   Family f;
   f.mesh = b.finish();
