@@ -784,18 +784,22 @@ class EvidenceScore {
 //    ±diag/15 in steps of `tight` (at most 81) finds it where single steps would not.
 // 2. Coordinate moves about and along the model's principal axes, turns of 8° down to 1° and
 //    shifts of 8 down to 1 × tight, each taken when it explains 2 per mille more points.
-Hypothesis settle_finalist(const EvidenceScore& ev, const ModelTarget::Impl& tgt, const Hypothesis& f,
-                           double diag, double weak_ratio) {
+// The profile and the two coarser levels count on `sparse` (a subset of the evidence: every
+// 4th point), the finer levels on all of `ev`: the score returned is `ev`'s.
+Hypothesis settle_finalist(const EvidenceScore& sparse, const EvidenceScore& ev, const ModelTarget::Impl& tgt,
+                           const Hypothesis& f, double diag, double weak_ratio) {
   const double tight = ev.tight();
   Hypothesis h = f;
+  const EvidenceScore* scorer = &sparse;
+  h.score = sparse.count(h.T);
   const auto take_if_better = [&](const Pose& cand) {
-    const double c = ev.count(cand);
+    const double c = scorer->count(cand);
     if (c <= h.score * 1.002) return false;
     h.score = c;
     h.T = cand;
     return true;
   };
-  const auto weak = ev.weak_translation(f.T, ev.explained(f.T));
+  const auto weak = sparse.weak_translation(f.T, sparse.explained(f.T));
   if (weak.ratio < weak_ratio) {
     const Pose start = h.T;
     const double reach = diag / 15, step = std::max(tight, reach / 40);  // at most 81 poses
@@ -806,6 +810,10 @@ Hypothesis settle_finalist(const EvidenceScore& ev, const ModelTarget::Impl& tgt
     }
   }
   for (double level : {8.0, 4.0, 2.0, 1.0}) {
+    if (level == 2.0) {
+      scorer = &ev;
+      h.score = ev.count(h.T);
+    }
     bool improved = true;
     while (improved) {
       improved = false;
@@ -1009,12 +1017,19 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   // fine points with their own normals (small datum features need many points to be seen).
   PointCloud evidence_cloud;
   if (!clear) {
-    const std::size_t stride = std::max<std::size_t>(1, fine.size() / 20000);
+    const std::size_t stride = std::max<std::size_t>(1, (fine.size() + 19999) / 20000);
     for (std::size_t i = 0; i < fine.size(); i += stride) evidence_cloud.points.push_back(fine.points[i]);
     estimate_normals(evidence_cloud, p.normal_k, p.viewpoint);
   }
   const PointCloud& evidence = clear ? sub : evidence_cloud;
   const EvidenceScore score(evidence, tgt, tight, std::cos(p.normal_angle), p.viewpoint.allFinite());
+  PointCloud sparse_evidence;  // every 4th evidence point: the coarse moves of settle_finalist
+  if (!clear)
+    for (std::size_t i = 0; i < evidence.size(); i += 4) {
+      sparse_evidence.points.push_back(evidence.points[i]);
+      sparse_evidence.normals.push_back(evidence.normals[i]);
+    }
+  const EvidenceScore sparse_score(sparse_evidence, tgt, tight, std::cos(p.normal_angle), p.viewpoint.allFinite());
   const auto explained = [&](const Pose& T) { return score.explained(T); };
   const auto count = [](const std::vector<char>& e) { return EvidenceScore::count(e); };
   // The ICP minimises the plain point-to-plane error of the ICP subset; on a near-symmetric part
@@ -1057,10 +1072,11 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
   // that move onto each other merge. Only when the coarse level is not clear.
   bool rivals_merged = false;  // every rival moved onto the winner
   if (!clear) {
+    const auto t_settle = std::chrono::steady_clock::now();
     std::vector<Hypothesis> settled;
     std::vector<std::vector<char>> settled_expl;
     for (const auto& f : finalists) {
-      const Hypothesis h = settle_finalist(score, tgt, f, diag, p.weak_direction_ratio);
+      const Hypothesis h = settle_finalist(sparse_score, score, tgt, f, diag, p.weak_direction_ratio);
       std::size_t same = settled.size();
       for (std::size_t k = 0; k < settled.size() && same == settled.size(); ++k)
         if (!distinct(settled[k].T, h.T, diag)) same = k;
@@ -1072,6 +1088,9 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
         settled_expl[same] = explained(h.T);
       }
     }
+    spdlog::debug("register: {} finalists settled in {:.0f} ms ({} evidence points)", finalists.size(),
+                  std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_settle).count(),
+                  evidence.size());
     rivals_merged = finalists.size() > 1 && settled.size() == 1;
     finalists = std::move(settled);
     expl = std::move(settled_expl);
