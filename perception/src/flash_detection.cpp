@@ -1087,10 +1087,20 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
     // Height direction: the fin normal made perpendicular to the mean wall normal (walls
     // around a loop average out: then the fin normal itself).
     Vec3 nw = Vec3::Zero();
-    for (const auto& v : inner_n) nw += v;
+    double slope = 0;  // mean |sin| of the walls' slope towards the fin normal
+    for (const auto& v : inner_n) {
+      nw += v;
+      slope += std::abs(v.dot(reg.normal_C)) / static_cast<double>(inner_n.size());
+    }
     RegionWork wk;
     wk.w = reg.normal_C;
-    if (nw.norm() > 0.5 * static_cast<double>(inner_n.size())) {
+    // On walls sloping towards the fin (a dome: more than 10° on average) "along the wall" is
+    // no one direction: heights go along the fin normal, and the root onto the CAD's section
+    // by the mid-plane (below). Only when the fitted normal can be trusted: the fin spreads
+    // over its plane ten times more than across it (a narrow band, a few millimetres of a
+    // hole's ring, can fit a plane tilted by tens of degrees, and the walls then look sloped).
+    const bool sloped = slope >= std::sin(10 * M_PI / 180) && fin.spread(1) > 100 * fin.spread(0);
+    if (!sloped && nw.norm() > 0.5 * static_cast<double>(inner_n.size())) {
       nw.normalize();
       const Vec3 w = reg.normal_C - reg.normal_C.dot(nw) * nw;
       if (w.norm() > 0.5) wk.w = w.normalized();

@@ -79,6 +79,7 @@ double smoothstep(double x) {
 // Nominal geometry of one sample, in {C} (see the header for the symbols).
 struct Geo {
   Vec3 p, n, t;
+  double slope = 0;  // [rad] the wall's own normal is n turned by this towards f (a sloped wall)
   double extra = 0;  // pass offset e [m]
   double lift = 0;   // approach/retract height along f [m]
   SampleKind kind = SampleKind::kCut;
@@ -180,7 +181,11 @@ struct Context {
 
   Pose pose_C(std::size_t i, const Dev& d, double spin0, double* off = nullptr) const {
     const Geo& g = geo[i];
-    Pose X = grind_tool_pose(g.p, g.n, g.t, f, x_ref, g.extra, lead + d.lead, tilt + d.tilt,
+    // On a sloped wall the burr's side lies on the wall: its own normal, and the fin normal
+    // turned into the wall's tangent plane (the shank leans with the wall).
+    const double cb = std::cos(g.slope), sb = std::sin(g.slope);
+    const Vec3 n_wall = cb * g.n + sb * f, f_wall = cb * f - sb * g.n;
+    Pose X = grind_tool_pose(g.p, n_wall, g.t, f_wall, x_ref, g.extra, lead + d.lead, tilt + d.tilt,
                              spin0 + d.spin, radius, length, tip_depth, off);
     X.translation() += g.lift * f;
     return X;
@@ -295,6 +300,7 @@ struct Seed {
   int branch = 0;
   double spin0 = 0;
   Vector6 q0 = Vector6::Zero();
+  Dev base;  // lean of the whole path (when the nominal first pose has no allowed solution)
 };
 
 // What tracking one seed produced.
@@ -400,7 +406,7 @@ SeedOutcome track_seed(const Context& C, const Seed& seed, const std::vector<Can
   const std::size_t N = C.geo.size();
   const GrindParams& P = C.P;
   SeedOutcome out;
-  out.dev.assign(N, Dev{});
+  out.dev.assign(N, seed.base);
   C.track(out.dev, seed.spin0, seed.branch, seed.q0, 0, N - 1, out.nodes, false);
 
   for (int round = 0; round < 3; ++round) {
@@ -720,6 +726,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     throw ArgumentError(strf("GrindPath.fin_height: expected >= 0 [m], got %g", path.fin_height));
   const Vec3 f = path.fin_normal_C.normalized();
   std::vector<Vec3> wall(N0);
+  std::vector<double> slope(N0, 0.0);  // [rad] each root point's wall slope (Geo::slope)
   for (std::size_t i = 0; i < N0; ++i) {
     check_finite(path.points_C[i], strf("GrindPath.points_C[%zu]", i));
     check_finite(path.normals_C[i], strf("GrindPath.normals_C[%zu]", i));
@@ -731,6 +738,11 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
                "away from the fin normal, got %s",
                i, vec_text(n).c_str()));
     wall[i] = np.normalized();
+    // A wall sloping more than 1° off square to the fin (a dome, a drafted wall): the burr
+    // leans with it (Context::pose_C). Within 1° the lean would move the burr by under 0.02 %
+    // of its radius: square.
+    const double b = std::asin(std::clamp(n.normalized().dot(f), -1.0, 1.0));
+    slope[i] = std::abs(b) > M_PI / 180 ? b : 0.0;
   }
 
   // ---- The burr must fit: a path on a wall that curves round its centre (closed, or an open
@@ -912,6 +924,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     g.p = q.p;
     g.n = q.n;
     g.t = reverse ? Vec3(-q.t) : q.t;
+    g.slope = slope[static_cast<std::size_t>(q.path_index)];
     g.extra = res.pass_offsets[static_cast<std::size_t>(pass)];
     g.kind = SampleKind::kCut;
     g.pass = pass;
@@ -1035,15 +1048,24 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   // ---- Seeds: every allowed IK solution of the first pose under every base spin.
   std::vector<Seed> seeds;
   Node first_fail;  // why the first pose has no seed at all
-  for (int k = 0; k < P.spin_candidates; ++k) {
-    const double spin0 = 2 * M_PI * k / P.spin_candidates;
-    const Pose X_BT = X_BC * C.pose_C(0, Dev{}, spin0);
-    const IkResult r = ik_tool(robot, X_BT);
-    for (const auto& sol : r.solutions)
-      if (P.branch_mask & (1u << sol.branch.index()))
-        seeds.push_back({sol.branch.index(), spin0, sol.q});
-  }
   const std::vector<Candidate> cands = candidates(P);
+  const auto seeds_leaning = [&](const Dev& base) {
+    for (int k = 0; k < P.spin_candidates; ++k) {
+      const double spin0 = 2 * M_PI * k / P.spin_candidates;
+      const Pose X_BT = X_BC * C.pose_C(0, base, spin0);
+      const IkResult r = ik_tool(robot, X_BT);
+      for (const auto& sol : r.solutions)
+        if (P.branch_mask & (1u << sol.branch.index())) seeds.push_back({sol.branch.index(), spin0, sol.q, base});
+    }
+  };
+  seeds_leaning(Dev{});
+  // No allowed solution at the nominal first pose under any spin (a wrist bent past its range
+  // to hold the burr upright close to the base): the whole path leans, by the re-orientation
+  // candidates' leans in their order, the smallest that gives seeds.
+  for (std::size_t c = 0; c < cands.size() && seeds.empty(); ++c) {
+    if (cands[c].level == 0) continue;
+    seeds_leaning(cands[c].d);  // the samples' extra lead and tilt show the lean
+  }
   std::vector<SeedOutcome> outcomes;
   for (const Seed& sd : seeds) outcomes.push_back(track_seed(C, sd, cands));
   res.seeds_tried = static_cast<int>(seeds.size());

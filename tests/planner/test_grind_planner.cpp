@@ -442,6 +442,30 @@ TEST(GrindPlanner, StockAllowanceKeepsTheBurrOffTheWall) {
     }
 }
 
+TEST(GrindPlanner, BurrLeansWithASlopedWall) {
+  // The wall line of the first test on a wall sloping 30° off the vertical (its normal turned
+  // up by 30°, as a dome's below its apex): on the finishing pass the burr's side lies on the
+  // wall (axis square to the wall normal, r off the wall plane, no part of the cutting length
+  // inside it). Upright, as for a vertical wall, its tip would stand 0.5 d_tip·sin 30° inside.
+  const RobotModel robot = ftest::ft6();
+  GrindPath path = wall_line(-0.02, 0.02, 0.005);
+  const double beta = M_PI / 6;
+  const Vec3 n_wall(-std::cos(beta), 0, std::sin(beta));
+  for (auto& n : path.normals_C) n = n_wall;
+  const GrindParams P = flush();
+  const GrindResult r = plan_grind(robot, translation(Vec3(0.7, 0, -0.15)), path, P);
+  ASSERT_TRUE(r.ok()) << r.message;
+  const double rad = robot.tool.radius, len = robot.tool.length;
+  std::size_t cuts = 0;
+  for (const auto& s : r.samples) {
+    if (s.kind != SampleKind::kCut) continue;
+    ++cuts;
+    EXPECT_NEAR(s.X_CT.linear().col(2).dot(n_wall), 0.0, 1e-9);
+    EXPECT_NEAR(wall_clearance(s.X_CT, Vec3::Zero(), n_wall, rad, len), 0.0, 1e-9);
+  }
+  EXPECT_GT(cuts, 80u);
+}
+
 TEST(GrindPlanner, HoleNarrowerThanTheBurrIsRefused) {
   // The burr (radius r) cannot follow a hole of radius r + 0.1 mm, whether its loop is whole
   // or only a 120° arc of it was seen; a hole of radius r + 1 mm is planned.
