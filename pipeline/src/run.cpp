@@ -255,6 +255,52 @@ PointCloud without_fixture(const PointCloud& cloud_M, const Scenario& sc, const 
   return out;
 }
 
+// The points [first, first + count) of a path (indices wrap round a closed one) as an open path.
+planner::GrindPath sub_path(const planner::GrindPath& gp, std::size_t first, std::size_t count) {
+  planner::GrindPath out = gp;
+  out.closed = false;
+  out.points_C.clear();
+  out.normals_C.clear();
+  for (std::size_t k = 0; k < count; ++k) {
+    const std::size_t i = (first + k) % gp.points_C.size();
+    out.points_C.push_back(gp.points_C[i]);
+    out.normals_C.push_back(gp.normals_C[i]);
+  }
+  return out;
+}
+
+// A path the arm cannot follow in one go (its wrist would pass a joint limit partway round a
+// dome or a boss, the burr leaning with the wall) is ground in pieces, split where the plan
+// failed: a piece ends 4 points before the failure and the next starts 8 points before that
+// end, each with its own approach, run-out and retract (the root where they meet is ground
+// twice, not left standing). A closed loop first opens at its failure and runs once round. At
+// most `max_pieces` pieces of at least 20 points; otherwise the whole path's failure stands.
+std::vector<planner::GrindResult> plan_in_pieces(const RobotModel& robot, const Pose& X_BC,
+                                                 const planner::GrindPath& gp,
+                                                 const planner::GrindParams& P, int max_pieces) {
+  planner::GrindResult whole = planner::plan_grind(robot, X_BC, gp, P);
+  const int i = whole.failed_path_index;
+  const auto n = static_cast<int>(gp.points_C.size());
+  constexpr int kMinPiece = 20, kOverlap = 8;
+  if (whole.ok() || whole.status != planner::GrindStatus::kJointLimit || max_pieces < 2 || i < 0 || i >= n)
+    return {whole};
+  if (gp.closed) {
+    auto pieces = plan_in_pieces(robot, X_BC, sub_path(gp, static_cast<std::size_t>(i), static_cast<std::size_t>(n + kOverlap)),
+                                 P, max_pieces);
+    if (pieces.front().ok()) return pieces;
+    return {whole};
+  }
+  const int end = i - kOverlap / 2, next = end - kOverlap;
+  if (end < kMinPiece || n - next < kMinPiece) return {whole};
+  planner::GrindResult head = planner::plan_grind(robot, X_BC, sub_path(gp, 0, static_cast<std::size_t>(end)), P);
+  if (!head.ok()) return {whole};
+  auto rest = plan_in_pieces(robot, X_BC, sub_path(gp, static_cast<std::size_t>(next), static_cast<std::size_t>(n - next)), P,
+                             max_pieces - 1);
+  if (!rest.front().ok()) return {whole};
+  rest.insert(rest.begin(), std::move(head));
+  return rest;
+}
+
 }  // namespace
 
 PointCloud registration_cloud(const Scenario& sc, const ScenarioScan& ss) {
@@ -378,7 +424,9 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     }
   }
 
-  // --- Planning: one grinding motion per path, on the casting where perception put it.
+  // --- Planning: one grinding motion per path (or per piece of it, plan_in_pieces), on the
+  // casting where perception put it.
+  constexpr int kMaxPieces = 4;
   double planning_s = 0;
   std::vector<PlannedPath> planned_paths;
   if (!out.refused && !det.paths.empty()) {
@@ -386,61 +434,72 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     const auto t_plan = Clock::now();
     const Pose X_BC_est = setup.spec.X_WB.inverse() * setup.spec.X_WM * X_CM_est.inverse();
     double vmax = 0, amax = 0, manip = 1e300, total_time = 0, length = 0;
-    int planned = 0, failed = 0, skipped = 0, tool_changes = 0;
+    int planned = 0, failed = 0, skipped = 0, tool_changes = 0, path_pieces = 0;
     std::string first_failure;
     json plans = json::array();
     for (std::size_t k = 0; k < det.paths.size(); ++k) {
       const auto& p = det.paths[k];
       const planner::GrindPath gp = grind_path_of(p);
-      planner::GrindResult g;
+      std::vector<planner::GrindResult> pieces(1);
       try {
-        g = planner::plan_grind(sc.robot, X_BC_est, gp, sc.grind);
+        pieces = plan_in_pieces(sc.robot, X_BC_est, gp, sc.grind, kMaxPieces);
         // A hole too narrow for the mounted burr: the largest burr of the rack that fits.
-        if (g.status == planner::GrindStatus::kToolTooLarge) {
+        if (pieces.front().status == planner::GrindStatus::kToolTooLarge) {
           std::vector<double> rack = sc.tool_rack;
           std::sort(rack.rbegin(), rack.rend());
           for (const double r : rack) {
             if (r >= sc.robot.tool.radius) continue;
             RobotModel smaller = sc.robot;
             smaller.tool.radius = r;
-            planner::GrindResult gs = planner::plan_grind(smaller, X_BC_est, gp, sc.grind);
-            if (gs.status == planner::GrindStatus::kToolTooLarge) continue;
+            auto ps = plan_in_pieces(smaller, X_BC_est, gp, sc.grind, kMaxPieces);
+            if (ps.front().status == planner::GrindStatus::kToolTooLarge) continue;
             spdlog::info("path {}: burr of radius {:.1f} mm from the tool rack ({})", k, r * 1e3,
-                         gs.ok() ? "planned" : gs.message);
-            tool_changes += gs.ok();
-            g = std::move(gs);
+                         ps.front().ok() ? "planned" : ps.front().message);
+            tool_changes += ps.front().ok();
+            pieces = std::move(ps);
             break;
           }
         }
       } catch (const ArgumentError& e) {
-        g.status = planner::GrindStatus::kDiscontinuous;
-        g.message = std::string("path rejected: ") + e.what();
+        pieces.assign(1, planner::GrindResult{});
+        pieces.front().status = planner::GrindStatus::kDiscontinuous;
+        pieces.front().message = std::string("path rejected: ") + e.what();
       }
+      const planner::GrindResult& g = pieces.front();
       json pj = {{"path", k}, {"status", planner::to_string(g.status)}, {"message", g.message}};
+      if (pieces.size() > 1) {
+        pj["pieces"] = pieces.size();
+        spdlog::info("path {}: ground in {} pieces (the wrist cannot follow it in one go)", k, pieces.size());
+      }
       if (g.ok()) {
         ++planned;
-        vmax = std::max(vmax, g.max_joint_velocity_ratio);
-        amax = std::max(amax, g.max_joint_accel_ratio);
-        manip = std::min(manip, g.min_manipulability);
-        total_time += g.total_time;
-        length += g.cut_length;
-        pj["time_s"] = g.total_time;
-        pj["cut_length_m"] = g.cut_length;
-        planned_paths.push_back({k, g});
-        if (write) {
-          const std::string pd = (dir / "plan" / ("path_" + std::to_string(k))).string();
+        for (std::size_t piece = 0; piece < pieces.size(); ++piece) {
+          const planner::GrindResult& gk = pieces[piece];
+          ++path_pieces;
+          vmax = std::max(vmax, gk.max_joint_velocity_ratio);
+          amax = std::max(amax, gk.max_joint_accel_ratio);
+          manip = std::min(manip, gk.min_manipulability);
+          total_time += gk.total_time;
+          length += gk.cut_length;
+          pj["time_s"] = pj.value("time_s", 0.0) + gk.total_time;
+          pj["cut_length_m"] = pj.value("cut_length_m", 0.0) + gk.cut_length;
+          planned_paths.push_back({k, gk});
+          if (!write) continue;
+          // path_K, then path_K_2, path_K_3 for the further pieces of a path ground in pieces.
+          const std::string name = "path_" + std::to_string(k) + (piece ? "_" + std::to_string(piece + 1) : "");
+          const std::string pd = (dir / "plan" / name).string();
           // The joint plots belong to the report (--no-report skips them).
-          const std::string csv = planner::trajectory_csv(g);
-          planner::write_grind_outputs(g, pd, opt.report, csv);
+          const std::string csv = planner::trajectory_csv(gk);
+          planner::write_grind_outputs(gk, pd, opt.report, csv);
           // The robot program a real KUKA controller would run (frames declared in it).
           planner::ProgramParams pp;
-          pp.name = "flashtwin_path_" + std::to_string(k);
+          pp.name = "flashtwin_" + name;
           try {
-            planner::export_program_file(sc.robot, g.trajectory, pp, pd);
+            planner::export_program_file(sc.robot, gk.trajectory, pp, pd);
           } catch (const ArgumentError& e) {
-            spdlog::warn("path {}: no KRL program: {}", k, e.what());
+            spdlog::warn("{}: no KRL program: {}", name, e.what());
           }
-          if (planned == 1) write_text_file((dir / "trajectory.csv").string(), csv);
+          if (planned == 1 && piece == 0) write_text_file((dir / "trajectory.csv").string(), csv);
         }
       } else if (g.status == planner::GrindStatus::kToolTooLarge) {
         // Not a failure of the plan: this tool cannot do it (a real cell drills such holes or
@@ -458,6 +517,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     m["trajectory.paths_failed"] = failed;
     m["trajectory.paths_skipped_tool_too_large"] = skipped;
     m["trajectory.paths_with_rack_tool"] = tool_changes;
+    m["trajectory.path_pieces"] = path_pieces;  // grinding motions: a path ground in pieces counts each
     m["trajectory.max_joint_velocity_ratio"] = vmax;
     m["trajectory.max_joint_accel_ratio"] = amax;
     m["trajectory.min_manipulability"] = finite_or_null(planned ? manip : NAN);
