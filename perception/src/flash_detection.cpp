@@ -249,13 +249,14 @@ struct PlaneSection {
       const auto& tri = cad.triangles[t];
       Vec3 v[3];
       double d[3];
-      bool inside = false;
       for (int k = 0; k < 3; ++k) {
         v[k] = cad.vertices[static_cast<std::size_t>(tri[k])];
         d[k] = w.dot(v[k]) - h;
-        inside = inside || ((v[k].array() >= lo.array()).all() && (v[k].array() <= hi.array()).all());
       }
-      if (!inside) continue;
+      // The triangle's bounding box meets the box (a wall's triangles can span its whole height
+      // with no vertex near the fin).
+      const Vec3 t_lo = v[0].cwiseMin(v[1]).cwiseMin(v[2]), t_hi = v[0].cwiseMax(v[1]).cwiseMax(v[2]);
+      if ((t_hi.array() < lo.array()).any() || (t_lo.array() > hi.array()).any()) continue;
       std::vector<Vec3> cut;  // where the edges cross the plane
       for (int k = 0; k < 3; ++k) {
         const int j = (k + 1) % 3;
