@@ -7,7 +7,7 @@
 #include <cmath>
 #include <limits>
 #include <map>
-#include <memory>
+#include <optional>
 #include <numeric>
 #include <set>
 #include <queue>
@@ -1166,7 +1166,7 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
     // along the height direction keeps it on the wall only where the wall is parallel to that
     // direction; on a sloped or domed wall it would stand off the steel or in it.
     const double section_reach = 3e-3;
-    std::unique_ptr<PlaneSection> section;
+    std::optional<PlaneSection> section;
     if (wk.shift && !wk.inner.empty()) {
       Vec3 box_lo = wk.inner.front(), box_hi = box_lo;
       for (const auto& q : wk.inner) {
@@ -1174,7 +1174,7 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
         box_hi = box_hi.cwiseMax(q);
       }
       const Vec3 margin = Vec3::Constant(2 * section_reach);
-      section = std::make_unique<PlaneSection>(cad, wk.w, wk.mid, box_lo - margin, box_hi + margin);
+      section.emplace(cad, wk.w, wk.mid, box_lo - margin, box_hi + margin);
     }
     PointCloud ic;
     for (std::size_t i = 0; i < wk.inner.size(); ++i) {

@@ -791,7 +791,8 @@ Hypothesis settle_finalist(const EvidenceScore& sparse, const EvidenceScore& ev,
   const double tight = ev.tight();
   Hypothesis h = f;
   const EvidenceScore* scorer = &sparse;
-  h.score = sparse.count(h.T);
+  const std::vector<char> start_expl = sparse.explained(f.T);
+  h.score = EvidenceScore::count(start_expl);
   const auto take_if_better = [&](const Pose& cand) {
     const double c = scorer->count(cand);
     if (c <= h.score * 1.002) return false;
@@ -799,7 +800,7 @@ Hypothesis settle_finalist(const EvidenceScore& sparse, const EvidenceScore& ev,
     h.T = cand;
     return true;
   };
-  const auto weak = sparse.weak_translation(f.T, sparse.explained(f.T));
+  const auto weak = sparse.weak_translation(f.T, start_expl);
   if (weak.ratio < weak_ratio) {
     const Pose start = h.T;
     const double reach = diag / 15, step = std::max(tight, reach / 40);  // at most 81 poses
