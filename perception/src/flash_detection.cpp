@@ -577,12 +577,13 @@ std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double ga
   std::vector<Eigen::Vector3f> pf(n);
   for (std::size_t i = 0; i < n; ++i) pf[i] = points[i].cast<float>();
   detail::KdTree tree(pf);
-  // Candidate edges: up to 10 nearest neighbours within the gap; Kruskal builds the Euclidean
-  // minimum spanning forest (ties broken by index: deterministic).
+  // Candidate edges: up to 10 nearest neighbours within a reach of 4 × gap; Kruskal builds the
+  // Euclidean minimum spanning forest (ties broken by index: deterministic).
   struct Edge {
     float w;
     std::uint32_t a, b;
   };
+  const double reach = 4 * gap;
   std::vector<Edge> edges;
   const std::size_t K = std::min<std::size_t>(11, n);
   std::vector<std::uint32_t> idx(K);
@@ -590,7 +591,7 @@ std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double ga
   for (std::size_t i = 0; i < n; ++i) {
     const std::size_t k = tree.knn(pf[i], K, idx.data(), d2.data());
     for (std::size_t t = 0; t < k; ++t)
-      if (idx[t] > i && d2[t] <= gap * gap) edges.push_back({d2[t], static_cast<std::uint32_t>(i), idx[t]});
+      if (idx[t] > i && d2[t] <= reach * reach) edges.push_back({d2[t], static_cast<std::uint32_t>(i), idx[t]});
   }
   std::sort(edges.begin(), edges.end(), [](const Edge& x, const Edge& y) {
     return x.w != y.w ? x.w < y.w : (x.a != y.a ? x.a < y.a : x.b < y.b);
@@ -601,13 +602,42 @@ std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double ga
     while (parent[x] != x) x = parent[x] = parent[parent[x]];
     return x;
   };
-  std::vector<std::vector<std::uint32_t>> adj(n);
+  std::vector<Edge> tree_edges;
   for (const auto& e : edges) {
     const auto ra = find(e.a), rb = find(e.b);
     if (ra == rb) continue;
     parent[ra] = rb;
+    tree_edges.push_back(e);
+  }
+  // A link longer than `gap` is kept where the root is sampled that sparsely round it: scan
+  // lines crossing a root a couple of millimetres apart give a group of points each, and the
+  // links between groups are all about the line spacing. It is kept when at least two other
+  // long links (over gap / 1.5) lie within three of its lengths and it is at most 1.5 × their
+  // median: a stretch where lines are missing, not the sampling, is still cut.
+  std::vector<std::size_t> long_links;
+  for (std::size_t i = 0; i < tree_edges.size(); ++i)
+    if (std::sqrt(static_cast<double>(tree_edges[i].w)) > gap / 1.5) long_links.push_back(i);
+  const auto link_length = [&](std::size_t i) { return std::sqrt(static_cast<double>(tree_edges[i].w)); };
+  const auto link_mid = [&](std::size_t i) {
+    return 0.5 * (points[tree_edges[i].a] + points[tree_edges[i].b]);
+  };
+  const auto sampled_that_sparsely = [&](std::size_t e) {
+    const double L = link_length(e);
+    std::vector<double> near;
+    for (auto j : long_links)
+      if (j != e && (link_mid(j) - link_mid(e)).norm() <= 3 * L) near.push_back(link_length(j));
+    return near.size() >= 2 && L <= 1.5 * percentile(near, 0.5);
+  };
+  std::vector<std::vector<std::uint32_t>> adj(n);
+  std::vector<double> longest(n, 0.0);  // longest kept link at each point
+  for (std::size_t i = 0; i < tree_edges.size(); ++i) {
+    const auto& e = tree_edges[i];
+    const double L = link_length(i);
+    if (L > gap && !sampled_that_sparsely(i)) continue;
     adj[e.a].push_back(e.b);
     adj[e.b].push_back(e.a);
+    longest[e.a] = std::max(longest[e.a], L);
+    longest[e.b] = std::max(longest[e.b], L);
   }
   // Farthest node (by path length along the tree) from a start node.
   std::vector<double> dist(n, -1);
@@ -662,8 +692,10 @@ std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double ga
         turn += std::atan2(nrm.dot(u.cross(v)), u.dot(v));
       }
     }
+    double link = gap;  // the longest link kept along the curve, if longer
+    for (auto u : pl.source) link = std::max(link, longest[static_cast<std::size_t>(u)]);
     pl.closed = pl.points.size() > 3 && len > 4 * gap &&
-                (ends <= gap || (std::abs(turn) > 1.5 * M_PI && ends < 0.25 * len));
+                (ends <= link || (std::abs(turn) > 1.5 * M_PI && ends < 0.25 * len));
     out.push_back(std::move(pl));
   }
   return out;

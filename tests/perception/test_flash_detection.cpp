@@ -492,6 +492,29 @@ TEST(FlashDetection, BadInputIsRejected) {
   EXPECT_THROW(detect_flash(scan, cad, Pose::Identity(), p), ArgumentError);
 }
 
+// A root seen by scan lines 1.8 mm apart: each line gives a group of three points 0.2 mm
+// apart, the groups farther apart than the gap. The groups are one line (the sampling, not a
+// missing stretch, spaces them); a stretch with four lines missing (9 mm) still splits it.
+TEST(FlashDetection, OrderPolylinesJoinsScanLineGroupsButNotAMissingStretch) {
+  std::vector<Vec3> pts;
+  for (int g = 0; g < 30; ++g) {
+    if (g >= 14 && g < 18) continue;  // lines 14-17 missing
+    for (int k = 0; k < 3; ++k) pts.emplace_back(0.0018 * g + 0.0002 * k, 0.0001 * k, 0);
+  }
+  const auto lines = order_polylines(pts, 0.0016);
+  ASSERT_EQ(lines.size(), 2u);
+  for (const auto& l : lines) {
+    EXPECT_FALSE(l.closed);
+    EXPECT_GE(l.points.size(), 36u);
+  }
+  // One point per line: the same; a 5 mm break between lines 1.8 mm apart splits them.
+  std::vector<Vec3> sparse;
+  for (int g = 0; g < 20; ++g) sparse.emplace_back(0.0018 * g + (g >= 10 ? 0.0032 : 0.0), 0, 0);
+  const auto two = order_polylines(sparse, 0.0016);
+  ASSERT_EQ(two.size(), 2u);
+  EXPECT_EQ(two[0].points.size(), 10u);
+}
+
 TEST(FlashDetection, OrderPolylinesSplitsAtGapsAndClosesLoops) {
   std::vector<Vec3> pts;
   for (int i = 0; i < 100; ++i) {  // a circle of radius 10 mm, shuffled order

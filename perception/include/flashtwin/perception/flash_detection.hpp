@@ -111,10 +111,13 @@ struct DetectionResult {
 DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, const Pose& X_CM,
                              const DetectionParams& params = {});
 
-/// Orders unordered points of one curve into polylines: links closer than `gap` are kept
-/// (Euclidean minimum spanning tree), each component becomes the longest path through its
-/// tree; `closed` when it is longer than 4 × gap and its ends are within `gap`, or it turns
-/// a full circle with its ends closer than a quarter of its length (a partly hidden loop).
+/// Orders unordered points of one curve into polylines: links of the Euclidean minimum
+/// spanning tree up to `gap` long are kept, and longer ones (up to 4 × gap) where the curve is
+/// sampled that sparsely round them (scan lines crossing a root a few millimetres apart: at
+/// least two other links over gap / 1.5 within three of its lengths, it at most 1.5 × their
+/// median); each component becomes the longest path through its tree. `closed` when it is
+/// longer than 4 × gap and its ends are within gap (or its longest link), or it turns a full
+/// circle with its ends closer than a quarter of its length (a partly hidden loop).
 struct Polyline {
   std::vector<Vec3> points;
   std::vector<int> source;  ///< index of each point in the input
