@@ -569,6 +569,69 @@ std::vector<bool> alpha_boundary(const std::vector<Eigen::Vector2d>& uv, double 
   return boundary;
 }
 
+namespace {
+
+// The unit direction in which a piece of curve (point indices) leaves through its front or back
+// end, from its point `span` inside; zero for a piece shorter than a tenth of the span.
+Vec3 leaving_direction(const std::vector<int>& piece, const std::vector<Vec3>& points, bool front,
+                       double span) {
+  const auto at = [&](std::size_t k) {
+    return points[static_cast<std::size_t>(piece[front ? k : piece.size() - 1 - k])];
+  };
+  const Vec3 end = at(0);
+  Vec3 inside = end;
+  for (std::size_t k = 1; k < piece.size(); ++k) {
+    inside = at(k);
+    if ((inside - end).norm() >= span) break;
+  }
+  const Vec3 d = end - inside;
+  return d.norm() < 0.1 * span ? Vec3::Zero() : Vec3(d.normalized());
+}
+
+// Pieces of one curve split where a few of its points are missing (a stretch of root hidden for
+// a millimetre or two) are joined end to end, nearest ends first: ends within `reach` whose
+// link continues the direction in which each piece leaves there (within 30°; a piece too short
+// to have a direction follows the other). Side-by-side pieces (two walls' roots, the two sides
+// of a slot) do not continue into each other and stay apart.
+void chain_pieces(std::vector<std::vector<int>>& pieces, const std::vector<Vec3>& points, double reach) {
+  const double span = reach / 2, aligned = std::cos(M_PI / 6);
+  for (;;) {
+    double best = reach;
+    int bi = -1, bj = -1;
+    bool bi_front = false, bj_front = false;
+    for (std::size_t i = 0; i < pieces.size(); ++i)
+      for (std::size_t j = i + 1; j < pieces.size(); ++j)
+        for (int ends = 0; ends < 4; ++ends) {
+          const bool fi = ends & 1, fj = ends & 2;
+          const Vec3& a = points[static_cast<std::size_t>(fi ? pieces[i].front() : pieces[i].back())];
+          const Vec3& b = points[static_cast<std::size_t>(fj ? pieces[j].front() : pieces[j].back())];
+          const double d = (b - a).norm();
+          if (d >= best || d <= 0) continue;
+          const Vec3 link = (b - a) / d;
+          const Vec3 ti = leaving_direction(pieces[i], points, fi, span);
+          const Vec3 tj = leaving_direction(pieces[j], points, fj, span);
+          if (ti.isZero() && tj.isZero()) continue;
+          if (!ti.isZero() && ti.dot(link) < aligned) continue;
+          if (!tj.isZero() && tj.dot(-link) < aligned) continue;
+          best = d;
+          bi = static_cast<int>(i);
+          bj = static_cast<int>(j);
+          bi_front = fi;
+          bj_front = fj;
+        }
+    if (bi < 0) return;
+    auto& p = pieces[static_cast<std::size_t>(bi)];
+    auto q = std::move(pieces[static_cast<std::size_t>(bj)]);
+    pieces.erase(pieces.begin() + bj);
+    // p's joined end last, then q from its joined end on.
+    if (bi_front) std::reverse(p.begin(), p.end());
+    if (!bj_front) std::reverse(q.begin(), q.end());
+    p.insert(p.end(), q.begin(), q.end());
+  }
+}
+
+}  // namespace
+
 std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double gap) {
   FT_ASSERT(gap > 0);
   const std::size_t n = points.size();
@@ -629,15 +692,12 @@ std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double ga
     return near.size() >= 2 && L <= 1.5 * percentile(near, 0.5);
   };
   std::vector<std::vector<std::uint32_t>> adj(n);
-  std::vector<double> longest(n, 0.0);  // longest kept link at each point
   for (std::size_t i = 0; i < tree_edges.size(); ++i) {
     const auto& e = tree_edges[i];
     const double L = link_length(i);
     if (L > gap && !sampled_that_sparsely(i)) continue;
     adj[e.a].push_back(e.b);
     adj[e.b].push_back(e.a);
-    longest[e.a] = std::max(longest[e.a], L);
-    longest[e.b] = std::max(longest[e.b], L);
   }
   // Farthest node (by path length along the tree) from a start node.
   std::vector<double> dist(n, -1);
@@ -664,6 +724,7 @@ std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double ga
   };
   std::vector<bool> done(n, false);
   std::vector<std::uint32_t> comp;
+  std::vector<std::vector<int>> pieces;
   for (std::size_t s = 0; s < n; ++s) {
     if (done[s]) continue;
     const auto a = farthest(static_cast<std::uint32_t>(s), comp);
@@ -672,14 +733,21 @@ std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double ga
       dist[u] = -1;
     }
     const auto b = farthest(a, comp);
-    Polyline pl;
-    for (std::int64_t u = b; u >= 0; u = from[u]) {
-      pl.points.push_back(points[static_cast<std::size_t>(u)]);
-      pl.source.push_back(static_cast<int>(u));
-    }
+    std::vector<int> piece;
+    for (std::int64_t u = b; u >= 0; u = from[u]) piece.push_back(static_cast<int>(u));
     for (auto u : comp) dist[u] = -1;
-    double len = 0;
-    for (std::size_t i = 1; i < pl.points.size(); ++i) len += (pl.points[i] - pl.points[i - 1]).norm();
+    pieces.push_back(std::move(piece));
+  }
+  chain_pieces(pieces, points, 3 * gap);
+  for (auto& piece : pieces) {
+    Polyline pl;
+    pl.source = std::move(piece);
+    for (auto u : pl.source) pl.points.push_back(points[static_cast<std::size_t>(u)]);
+    double len = 0, link = gap;  // length; the longest link along the curve, if over gap
+    for (std::size_t i = 1; i < pl.points.size(); ++i) {
+      len += (pl.points[i] - pl.points[i - 1]).norm();
+      link = std::max(link, (pl.points[i] - pl.points[i - 1]).norm());
+    }
     // Closed: the ends meet, or the curve turns a full circle (about its best-fit plane's
     // normal) and its ends are close compared with its length (a loop seen with a gap, e.g. a
     // hole flash partly hidden from the scanner).
@@ -692,8 +760,6 @@ std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double ga
         turn += std::atan2(nrm.dot(u.cross(v)), u.dot(v));
       }
     }
-    double link = gap;  // the longest link kept along the curve, if longer
-    for (auto u : pl.source) link = std::max(link, longest[static_cast<std::size_t>(u)]);
     pl.closed = pl.points.size() > 3 && len > 4 * gap &&
                 (ends <= link || (std::abs(turn) > 1.5 * M_PI && ends < 0.25 * len));
     out.push_back(std::move(pl));

@@ -515,6 +515,21 @@ TEST(FlashDetection, OrderPolylinesJoinsScanLineGroupsButNotAMissingStretch) {
   EXPECT_EQ(two[0].points.size(), 10u);
 }
 
+// Pieces of a root with a few points missing (a 1.8 mm hole in 0.4 mm sampling) are joined end
+// to end; a piece beside another (a root 2 mm off, parallel) or past 3 × gap is not.
+TEST(FlashDetection, OrderPolylinesJoinsPiecesThatContinueEachOther) {
+  std::vector<Vec3> pts;
+  for (int i = 0; i < 30; ++i) pts.emplace_back(0.0004 * i, 0, 0);          // 0 - 11.6 mm
+  for (int i = 0; i < 30; ++i) pts.emplace_back(0.0134 + 0.0004 * i, 0, 0);  // 1.8 mm on
+  for (int i = 0; i < 30; ++i) pts.emplace_back(0.0004 * i, 0.002, 0);       // beside, 2 mm off
+  for (int i = 0; i < 30; ++i) pts.emplace_back(0.0300 + 0.0004 * i, 0, 0);  // 4.9 mm past the end
+  const auto lines = order_polylines(pts, 0.0016);
+  ASSERT_EQ(lines.size(), 3u);
+  std::size_t longest = 0;
+  for (const auto& l : lines) longest = std::max(longest, l.points.size());
+  EXPECT_EQ(longest, 60u);
+}
+
 TEST(FlashDetection, OrderPolylinesSplitsAtGapsAndClosesLoops) {
   std::vector<Vec3> pts;
   for (int i = 0; i < 100; ++i) {  // a circle of radius 10 mm, shuffled order

@@ -115,7 +115,8 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
 /// spanning tree up to `gap` long are kept, and longer ones (up to 4 × gap) where the curve is
 /// sampled that sparsely round them (scan lines crossing a root a few millimetres apart: at
 /// least two other links over gap / 1.5 within three of its lengths, it at most 1.5 × their
-/// median); each component becomes the longest path through its tree. `closed` when it is
+/// median); each component becomes the longest path through its tree, and pieces whose ends
+/// lie within 3 × gap and continue into each other (within 30°) are joined. `closed` when it is
 /// longer than 4 × gap and its ends are within gap (or its longest link), or it turns a full
 /// circle with its ends closer than a quarter of its length (a partly hidden loop).
 struct Polyline {
