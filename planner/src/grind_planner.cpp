@@ -401,6 +401,27 @@ Fix try_fix(const Context& C, const Seed& seed, const SeedOutcome& out, std::siz
   return fix;
 }
 
+// The re-orientation of the bad range a..b: the first spin about the tool axis that works;
+// else a lead (the axis turned within the wall's plane keeps the burr's side flush with the
+// wall), the smallest that works; else a lean with tilt (the side then stands off the wall at
+// one end of the cutting length and leaves a wedge of flash: 1.5 mm of a fin's end on a
+// round flange at 11°), the smallest. Within a level, the best manipulability.
+Fix best_fix(const Context& C, const Seed& seed, const SeedOutcome& out, std::size_t a,
+             std::size_t b, const std::vector<Candidate>& cands) {
+  Fix best;
+  for (const bool with_tilt : {false, true}) {
+    for (const Candidate& cand : cands) {
+      if ((cand.d.tilt != 0) != with_tilt) continue;
+      if (best.ok && cand.level != best.level) break;  // smallest working level only
+      Fix fix = try_fix(C, seed, out, a, b, cand);
+      if (fix.ok && (!best.ok || fix.min_manip > best.min_manip)) best = std::move(fix);
+      if (best.ok && cand.level == 0) break;
+    }
+    if (best.ok) break;
+  }
+  return best;
+}
+
 // Tracks one seed over all samples, re-orienting bad ranges.
 SeedOutcome track_seed(const Context& C, const Seed& seed, const std::vector<Candidate>& cands) {
   const std::size_t N = C.geo.size();
@@ -436,14 +457,7 @@ SeedOutcome track_seed(const Context& C, const Seed& seed, const std::vector<Can
       const NodeStatus worst_status = out.nodes[worst].status;
       bool fixed = false;
       if (round < 2) {
-        // Candidates by level; spins: the first that works; leans: the best of the level.
-        Fix best;
-        for (const Candidate& cand : cands) {
-          if (best.ok && cand.level != best.level) break;  // smallest working level only
-          Fix fix = try_fix(C, seed, out, a, b, cand);
-          if (fix.ok && (!best.ok || fix.min_manip > best.min_manip)) best = std::move(fix);
-          if (best.ok && cand.level == 0) break;
-        }
+        const Fix best = best_fix(C, seed, out, a, b, cands);
         if (best.ok) {
           for (std::size_t i = best.wa; i <= best.wb; ++i) {
             const double wi = best.w[i - best.wa];
@@ -1070,18 +1084,26 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   for (const Seed& sd : seeds) outcomes.push_back(track_seed(C, sd, cands));
   res.seeds_tried = static_cast<int>(seeds.size());
 
-  // ---- Choose: complete seeds within 10 % of the best minimum manipulability, then the fewest
-  // re-orientations, then the largest joint-limit margin, then the first.
-  int chosen = -1;
-  double best_manip = -1;
+  // ---- Choose: complete seeds that keep the burr flush with the wall (no tilt anywhere: a
+  // tilted burr leaves a wedge of flash at the root) if there are any, among them those within
+  // 10 % of the best minimum manipulability, then the fewest re-orientations, then the largest
+  // joint-limit margin, then the first.
+  const auto flush = [](const SeedOutcome& o) {
+    return std::all_of(o.dev.begin(), o.dev.end(), [](const Dev& d) { return d.tilt == 0; });
+  };
+  bool any_flush = false;
   for (const auto& o : outcomes)
     if (o.complete) {
       ++res.seeds_completed;
-      best_manip = std::max(best_manip, o.min_manip);
+      any_flush = any_flush || flush(o);
     }
+  double best_manip = -1;
+  for (const auto& o : outcomes)
+    if (o.complete && (!any_flush || flush(o))) best_manip = std::max(best_manip, o.min_manip);
+  int chosen = -1;
   for (std::size_t k = 0; k < outcomes.size(); ++k) {
     const auto& o = outcomes[k];
-    if (!o.complete || o.min_manip < 0.9 * best_manip) continue;
+    if (!o.complete || (any_flush && !flush(o)) || o.min_manip < 0.9 * best_manip) continue;
     if (chosen < 0) {
       chosen = static_cast<int>(k);
       continue;

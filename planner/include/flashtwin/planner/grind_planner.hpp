@@ -209,9 +209,10 @@ struct GrindResult {
 /// (with a known fin height: roughing passes of equal depths ≤ max_depth_of_cut at the
 /// roughing feed down to finish_depth, then one finishing pass at the cutting feed flush with
 /// the wall; in a hole the passes start no farther from the wall than the hole's centre), one IK branch chosen over all (branch, base spin) seeds of the first pose — among the
-/// seeds that complete, those within 10 % of the best minimum manipulability, then the fewest
+/// seeds that complete, those that keep the burr flush (no tilt) if any, of them those within
+/// 10 % of the best minimum manipulability, then the fewest
 /// re-orientations, then the largest joint-limit margin — re-orientation of bad ranges (spin about
-/// z_T first, then leans of growing size), and time parametrization segment by segment (each
+/// z_T first, then leads of growing size, which keep the burr flush, then leans with tilt), and time parametrization segment by segment (each
 /// starts and ends at rest; all share one sample period).
 /// @throws ArgumentError on malformed input: size mismatch, non-finite values, a zero fin
 /// normal, a wall normal (nearly) parallel to the fin normal, too few points after thinning,
