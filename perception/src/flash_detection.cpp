@@ -590,9 +590,11 @@ Vec3 leaving_direction(const std::vector<int>& piece, const std::vector<Vec3>& p
 
 // Pieces of one curve split where a few of its points are missing (a stretch of root hidden for
 // a millimetre or two) are joined end to end, nearest ends first: ends within `reach` whose
-// link continues the direction in which each piece leaves there (within 30°; a piece too short
-// to have a direction follows the other). Side-by-side pieces (two walls' roots, the two sides
-// of a slot) do not continue into each other and stay apart.
+// link continues the direction in which each piece leaves there (within 30°). A piece too short
+// to have a direction joins nothing: a few points of a neighbouring hole's ring in the same
+// region would otherwise be stepping stones that carry a line across a corner through the
+// steel (housing 7026). Side-by-side pieces (two walls' roots, the two sides of a slot) do not
+// continue into each other and stay apart.
 void chain_pieces(std::vector<std::vector<int>>& pieces, const std::vector<Vec3>& points, double reach) {
   const double span = reach / 2, aligned = std::cos(M_PI / 6);
   for (;;) {
@@ -610,9 +612,8 @@ void chain_pieces(std::vector<std::vector<int>>& pieces, const std::vector<Vec3>
           const Vec3 link = (b - a) / d;
           const Vec3 ti = leaving_direction(pieces[i], points, fi, span);
           const Vec3 tj = leaving_direction(pieces[j], points, fj, span);
-          if (ti.isZero() && tj.isZero()) continue;
-          if (!ti.isZero() && ti.dot(link) < aligned) continue;
-          if (!tj.isZero() && tj.dot(-link) < aligned) continue;
+          if (ti.isZero() || tj.isZero() || ti.dot(link) < aligned || tj.dot(-link) < aligned)
+            continue;
           best = d;
           bi = static_cast<int>(i);
           bj = static_cast<int>(j);
@@ -749,8 +750,10 @@ std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double ga
       link = std::max(link, (pl.points[i] - pl.points[i - 1]).norm());
     }
     // Closed: the ends meet, or the curve turns a full circle (about its best-fit plane's
-    // normal) and its ends are close compared with its length (a loop seen with a gap, e.g. a
-    // hole flash partly hidden from the scanner).
+    // normal) and its ends are close compared with its length and within 4 × gap (a loop seen
+    // with a gap, e.g. a hole flash partly hidden from the scanner; a wider gap in a hole's
+    // ring is closed along its circle by close_hole_arc, and a parting line round a whole
+    // casting that stops 20 mm short of its start is not a loop: its chord cut a corner).
     const double ends = (pl.points.front() - pl.points.back()).norm();
     double turn = 0;
     if (pl.points.size() > 3) {
@@ -761,7 +764,7 @@ std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double ga
       }
     }
     pl.closed = pl.points.size() > 3 && len > 4 * gap &&
-                (ends <= link || (std::abs(turn) > 1.5 * M_PI && ends < 0.25 * len));
+                (ends <= link || (std::abs(turn) > 1.5 * M_PI && ends < 0.25 * len && ends <= 4 * gap));
     out.push_back(std::move(pl));
   }
   return out;

@@ -530,6 +530,29 @@ TEST(FlashDetection, OrderPolylinesJoinsPiecesThatContinueEachOther) {
   EXPECT_EQ(longest, 60u);
 }
 
+// A parting line round a whole casting (a 100 mm circle here) that stops 20 mm short of its
+// start turns a full circle with its ends far closer than a quarter of its length, but it is
+// not a loop: closing it would grind a chord across the gap (through a corner of the part). A
+// hole's ring of radius 6 mm seen with a 3 mm gap is one.
+TEST(FlashDetection, OrderPolylinesClosesAHiddenGapOfARingNotOfAWholePartingLine) {
+  const auto arc = [](double radius, double gap_length, double step) {
+    std::vector<Vec3> pts;
+    const double span = 2 * M_PI - gap_length / radius;
+    const int n = static_cast<int>(span * radius / step);
+    for (int i = 0; i <= n; ++i) {
+      const double a = span * i / n;
+      pts.emplace_back(radius * std::cos(a), radius * std::sin(a), 0);
+    }
+    return pts;
+  };
+  const auto long_line = order_polylines(arc(0.05, 0.02, 0.0004), 0.0016);
+  ASSERT_EQ(long_line.size(), 1u);
+  EXPECT_FALSE(long_line[0].closed);
+  const auto ring = order_polylines(arc(0.006, 0.003, 0.0004), 0.0016);
+  ASSERT_EQ(ring.size(), 1u);
+  EXPECT_TRUE(ring[0].closed);
+}
+
 TEST(FlashDetection, OrderPolylinesSplitsAtGapsAndClosesLoops) {
   std::vector<Vec3> pts;
   for (int i = 0; i < 100; ++i) {  // a circle of radius 10 mm, shuffled order

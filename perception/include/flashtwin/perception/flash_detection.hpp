@@ -118,7 +118,7 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
 /// median); each component becomes the longest path through its tree, and pieces whose ends
 /// lie within 3 × gap and continue into each other (within 30°) are joined. `closed` when it is
 /// longer than 4 × gap and its ends are within gap (or its longest link), or it turns a full
-/// circle with its ends closer than a quarter of its length (a partly hidden loop).
+/// circle with its ends closer than a quarter of its length and 4 × gap (a partly hidden loop).
 struct Polyline {
   std::vector<Vec3> points;
   std::vector<int> source;  ///< index of each point in the input
