@@ -277,16 +277,31 @@ planner::GrindPath sub_path(const planner::GrindPath& gp, std::size_t first, std
 // most `max_pieces` pieces of at least 20 points; otherwise the whole path's failure stands.
 std::vector<planner::GrindResult> plan_in_pieces(const RobotModel& robot, const Pose& X_BC,
                                                  const planner::GrindPath& gp,
-                                                 const planner::GrindParams& P, int max_pieces) {
+                                                 const planner::GrindParams& P, int max_pieces,
+                                                 bool may_trim = true) {
   planner::GrindResult whole = planner::plan_grind(robot, X_BC, gp, P);
   const int i = whole.failed_path_index;
   const auto n = static_cast<int>(gp.points_C.size());
   constexpr int kMinPiece = 20, kOverlap = 8;
-  if (whole.ok() || whole.status != planner::GrindStatus::kJointLimit || max_pieces < 2 || i < 0 || i >= n)
+  if (whole.ok() || whole.status != planner::GrindStatus::kJointLimit || i < 0 || i >= n)
     return {whole};
+  // No start within reach of the wrist (the first pose, even with the whole path leaning, is
+  // past a joint's range): the path starts farther in, 4 points at a time up to 64, and the root
+  // before it is left (a real cell would turn the part; the residual shows it).
+  if (i < kMinPiece && may_trim && !gp.closed) {
+    for (int s = 4; s <= 64 && n - s >= kMinPiece; s += 4) {
+      auto pieces = plan_in_pieces(robot, X_BC, sub_path(gp, static_cast<std::size_t>(s), static_cast<std::size_t>(n - s)), P,
+                                   max_pieces, false);
+      if (!pieces.front().ok()) continue;
+      spdlog::info("a path's first {} points are out of the wrist's reach: it is ground from there on", s);
+      return pieces;
+    }
+    return {whole};
+  }
+  if (max_pieces < 2) return {whole};
   if (gp.closed) {
     auto pieces = plan_in_pieces(robot, X_BC, sub_path(gp, static_cast<std::size_t>(i), static_cast<std::size_t>(n + kOverlap)),
-                                 P, max_pieces);
+                                 P, max_pieces, may_trim);
     if (pieces.front().ok()) return pieces;
     return {whole};
   }
@@ -295,7 +310,7 @@ std::vector<planner::GrindResult> plan_in_pieces(const RobotModel& robot, const 
   planner::GrindResult head = planner::plan_grind(robot, X_BC, sub_path(gp, 0, static_cast<std::size_t>(end)), P);
   if (!head.ok()) return {whole};
   auto rest = plan_in_pieces(robot, X_BC, sub_path(gp, static_cast<std::size_t>(next), static_cast<std::size_t>(n - next)), P,
-                             max_pieces - 1);
+                             max_pieces - 1, false);
   if (!rest.front().ok()) return {whole};
   rest.insert(rest.begin(), std::move(head));
   return rest;
@@ -426,7 +441,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
 
   // --- Planning: one grinding motion per path (or per piece of it, plan_in_pieces), on the
   // casting where perception put it.
-  constexpr int kMaxPieces = 4;
+  constexpr int kMaxPieces = 8;
   double planning_s = 0;
   std::vector<PlannedPath> planned_paths;
   if (!out.refused && !det.paths.empty()) {
