@@ -274,7 +274,8 @@ planner::GrindPath sub_path(const planner::GrindPath& gp, std::size_t first, std
 // failed: a piece ends 4 points before the failure and the next starts 8 points before that
 // end, each with its own approach, run-out and retract (the root where they meet is ground
 // twice, not left standing). A closed loop first opens at its failure and runs once round. At
-// most `max_pieces` pieces of at least 20 points; otherwise the whole path's failure stands.
+// most `max_pieces` pieces of at least 20 points; otherwise the whole path's failure stands. An
+// open path that fails within its first 20 points is first tried from farther in (`may_trim`).
 std::vector<planner::GrindResult> plan_in_pieces(const RobotModel& robot, const Pose& X_BC,
                                                  const planner::GrindPath& gp,
                                                  const planner::GrindParams& P, int max_pieces,
@@ -285,15 +286,16 @@ std::vector<planner::GrindResult> plan_in_pieces(const RobotModel& robot, const 
   constexpr int kMinPiece = 20, kOverlap = 8;
   if (whole.ok() || whole.status != planner::GrindStatus::kJointLimit || i < 0 || i >= n)
     return {whole};
-  // No start within reach of the wrist (the first pose, even with the whole path leaning, is
-  // past a joint's range): the path starts farther in, 4 points at a time up to 64, and the root
-  // before it is left (a real cell would turn the part; the residual shows it).
+  // The wrist cannot reach the path's first points (its first pose, even with the whole path
+  // leaning, or a later pass returning there, is past a joint's range): the path starts farther
+  // in, 4 points at a time up to 64, and the root before it is left (a real cell would turn the
+  // part; the residual shows it).
   if (i < kMinPiece && may_trim && !gp.closed) {
     for (int s = 4; s <= 64 && n - s >= kMinPiece; s += 4) {
       auto pieces = plan_in_pieces(robot, X_BC, sub_path(gp, static_cast<std::size_t>(s), static_cast<std::size_t>(n - s)), P,
                                    max_pieces, false);
       if (!pieces.front().ok()) continue;
-      spdlog::info("a path's first {} points are out of the wrist's reach: it is ground from there on", s);
+      spdlog::info("a path's first {} points are out of the wrist's reach: it is ground from there on (the root before stays)", s);
       return pieces;
     }
     return {whole};
