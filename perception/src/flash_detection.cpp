@@ -678,25 +678,25 @@ std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double ga
   // links between groups are all about the line spacing. It is kept when at least two other
   // long links (over gap / 1.5) lie within three of its lengths and it is at most 1.5 × their
   // median: a stretch where lines are missing, not the sampling, is still cut.
+  std::vector<double> link_length(tree_edges.size());
+  std::vector<Vec3> link_mid(tree_edges.size());
   std::vector<std::size_t> long_links;
-  for (std::size_t i = 0; i < tree_edges.size(); ++i)
-    if (std::sqrt(static_cast<double>(tree_edges[i].w)) > gap / 1.5) long_links.push_back(i);
-  const auto link_length = [&](std::size_t i) { return std::sqrt(static_cast<double>(tree_edges[i].w)); };
-  const auto link_mid = [&](std::size_t i) {
-    return 0.5 * (points[tree_edges[i].a] + points[tree_edges[i].b]);
-  };
+  for (std::size_t i = 0; i < tree_edges.size(); ++i) {
+    link_length[i] = std::sqrt(static_cast<double>(tree_edges[i].w));
+    link_mid[i] = 0.5 * (points[tree_edges[i].a] + points[tree_edges[i].b]);
+    if (link_length[i] > gap / 1.5) long_links.push_back(i);
+  }
   const auto sampled_that_sparsely = [&](std::size_t e) {
-    const double L = link_length(e);
+    const double L = link_length[e];
     std::vector<double> near;
     for (auto j : long_links)
-      if (j != e && (link_mid(j) - link_mid(e)).norm() <= 3 * L) near.push_back(link_length(j));
+      if (j != e && (link_mid[j] - link_mid[e]).norm() <= 3 * L) near.push_back(link_length[j]);
     return near.size() >= 2 && L <= 1.5 * percentile(near, 0.5);
   };
   std::vector<std::vector<std::uint32_t>> adj(n);
   for (std::size_t i = 0; i < tree_edges.size(); ++i) {
     const auto& e = tree_edges[i];
-    const double L = link_length(i);
-    if (L > gap && !sampled_that_sparsely(i)) continue;
+    if (link_length[i] > gap && !sampled_that_sparsely(i)) continue;
     adj[e.a].push_back(e.b);
     adj[e.b].push_back(e.a);
   }

@@ -3,28 +3,9 @@
 // execution); scored against the truth.
 #include <gtest/gtest.h>
 
-#include "flashtwin/pipeline/run.hpp"
-#include "flashtwin/pipeline/scenario.hpp"
-#include "test_util.hpp"
+#include "../pipeline/scenario_run.hpp"
 
 using namespace flashtwin;
-
-namespace {
-
-nlohmann::ordered_json perceive(const std::string& scenario, std::uint64_t seed) {
-  auto sc = pipeline::load_scenario(ftest::source_path("scenarios/" + scenario + ".yaml"));
-  pipeline::set_seed(sc, seed);
-  sc.execution.enabled = false;
-  pipeline::RunOptions o;
-  o.report = false;
-  o.write_scan = false;
-  o.out_dir = ftest::temp_dir("curved_" + scenario);
-  const auto r = pipeline::run_scenario(sc, o);
-  EXPECT_FALSE(r.refused) << r.verdict;
-  return r.metrics;
-}
-
-}  // namespace
 
 // The fin stands on the dome where it slopes 20-60° off the vertical. Seed 11: the root was the
 // wall point nearest the fin's upper face moved down to the mid-plane along the vertical, which
@@ -35,7 +16,7 @@ nlohmann::ordered_json perceive(const std::string& scenario, std::uint64_t seed)
 TEST(CurvedWalls, FinOnADomeIsRootedWhereItsMidPlaneMeetsTheDome) {
   for (const std::uint64_t seed : {11u, 9001u}) {
     SCOPED_TRACE("seed " + std::to_string(seed));
-    const auto m = perceive("cover", seed);
+    const auto m = ftest::scenario_metrics("cover", seed, false);
     ASSERT_TRUE(m.contains("path.coverage"));
     EXPECT_GE(m["path.coverage"].get<double>(), 0.95);
     EXPECT_LE(m["path.rmse_mm"].get<double>(), 0.4);
@@ -51,7 +32,7 @@ TEST(CurvedWalls, FinOnADomeIsRootedWhereItsMidPlaneMeetsTheDome) {
 // would pass its range (joint 4 by 0.32 rad) two thirds of the way round. The path is ground
 // in pieces, split where the plan failed (each with its own approach and retract).
 TEST(CurvedWalls, LongArcRoundTheDomeIsGroundInPieces) {
-  const auto m = perceive("cover", 9008);
+  const auto m = ftest::scenario_metrics("cover", 9008, false);
   EXPECT_EQ(m["trajectory.paths_failed"].get<int>(), 0);
   EXPECT_GT(m["trajectory.path_pieces"].get<int>(), m["trajectory.paths_planned"].get<int>());
 }

@@ -2,28 +2,9 @@
 // lines, and a fin's end where the wrist reaches its range. Scored against the truth.
 #include <gtest/gtest.h>
 
-#include "flashtwin/pipeline/run.hpp"
-#include "flashtwin/pipeline/scenario.hpp"
-#include "test_util.hpp"
+#include "scenario_run.hpp"
 
 using namespace flashtwin;
-
-namespace {
-
-nlohmann::ordered_json run_round_flange(std::uint64_t seed, bool execute) {
-  auto sc = pipeline::load_scenario(ftest::source_path("scenarios/round_flange.yaml"));
-  pipeline::set_seed(sc, seed);
-  sc.execution.enabled = execute;
-  pipeline::RunOptions o;
-  o.report = false;
-  o.write_scan = false;
-  o.out_dir = ftest::temp_dir("round_flange_" + std::to_string(seed));
-  const auto r = pipeline::run_scenario(sc, o);
-  EXPECT_FALSE(r.refused) << r.verdict;
-  return r.metrics;
-}
-
-}  // namespace
 
 // Seeds 6023 and 6027: stretches of the rim's root were seen only by scan lines about 1.8 mm
 // apart (two or three root points where each line crosses it), farther apart than the 1.6 mm
@@ -33,7 +14,7 @@ nlohmann::ordered_json run_round_flange(std::uint64_t seed, bool execute) {
 TEST(RoundFlange, RootSeenBySparseScanLinesStaysOneLine) {
   for (const std::uint64_t seed : {6023u, 6027u}) {
     SCOPED_TRACE("seed " + std::to_string(seed));
-    const auto m = run_round_flange(seed, false);
+    const auto m = ftest::scenario_metrics("round_flange", seed, false);
     ASSERT_TRUE(m.contains("path.max_mm"));
     EXPECT_LE(m["path.max_mm"].get<double>(), 2.5);
     EXPECT_GE(m["path.coverage"].get<double>(), 0.995);
@@ -44,7 +25,7 @@ TEST(RoundFlange, RootSeenBySparseScanLinesStaysOneLine) {
 // chosen leaned the burr 11° off the wall there (a tilt), and its side, no longer flush, left a
 // wedge of fin 1.76 mm high over the last 10 mm. Another IK seed grinds it flush.
 TEST(RoundFlange, FinEndWhereTheWristIsAtItsRangeIsGroundFlush) {
-  const auto m = run_round_flange(6031, true);
+  const auto m = ftest::scenario_metrics("round_flange", 6031, true);
   ASSERT_TRUE(m.contains("removal.residual_flash_max_mm"));
   EXPECT_LE(m["removal.residual_flash_max_mm"].get<double>(), 0.2);
   EXPECT_LE(m["removal.gouge_max_mm"].get<double>(), 0.1);
