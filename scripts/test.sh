@@ -3,8 +3,8 @@
 # Usage: scripts/test.sh [--sanitize]
 #   (no option)  ./build: every test, the scenario regression (ctest -L scenario) included
 #   --sanitize   ./build-asan with AddressSanitizer + UndefinedBehaviorSanitizer: the unit and
-#                CLI tests (everything but the scenario regression); any leak, memory error or
-#                undefined behaviour fails the test that caused it
+#                CLI tests (not the scenario regression nor the whole-pass `pipeline` tests);
+#                any leak, memory error or undefined behaviour fails the test that caused it
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -22,7 +22,7 @@ case "${1:-}" in
     export LSAN_OPTIONS="suppressions=$PWD/scripts/sanitizers/lsan.supp:print_suppressions=0"
     export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
     cd build-asan
-    ctest -j2 --output-on-failure --timeout 1800 -LE scenario
+    ctest -j2 --output-on-failure --timeout 1800 -LE "scenario|pipeline"
     ;;
   -h|--help)
     sed -n '2,8p' "$0" | sed 's/^# \{0,1\}//'

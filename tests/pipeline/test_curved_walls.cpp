@@ -3,7 +3,7 @@
 // execution); scored against the truth.
 #include <gtest/gtest.h>
 
-#include "../pipeline/scenario_run.hpp"
+#include "scenario_run.hpp"
 
 using namespace flashtwin;
 
