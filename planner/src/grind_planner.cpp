@@ -760,11 +760,14 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   }
 
   // ---- The burr must fit: a path on a wall that curves round its centre (closed, or an open
-  // arc of at least 45°: part of a hole seen) is in a hole, and the burr (radius r) cannot
-  // follow a hole narrower than r plus a small clearance.
+  // arc of at least 45°: part of a hole seen) is in a hole, and the burr (radius r) needs room
+  // to step in to the wall from nearer the centre. A burr that leaves less than the lead
+  // clearance would ream: its end face plunges through the whole fin ring at once (housing
+  // 7002: a 12 mm burr in a 12.5 mm hole, 200-700 N, the arm pushed 0.4 mm off the plan and
+  // the wall gouged 0.11 mm along the plunge); a smaller burr from the rack orbits instead.
   double hole_r = 1e300;  // [m] radius of the hole the path runs round (1e300: not a hole)
   if (N0 >= 3) {
-    constexpr double kClearance = 2e-4;
+    const double kClearance = std::max(2e-4, P.lead_clearance);
     if (path.closed) {
       // Centroid weighted by arc length (points may be denser on one side of the loop).
       Vec3 c = Vec3::Zero();
@@ -795,7 +798,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
       GrindResult res;
       res.status = GrindStatus::kToolTooLarge;
       res.message = strf("hole of radius %.2f mm (%s) is too narrow for the burr of radius "
-                         "%.2f mm (+%.1f mm clearance): needs a smaller burr",
+                         "%.2f mm (+%.1f mm room to step in): needs a smaller burr",
                          hole_r * 1e3,
                          path.closed ? "nearest root point to its centre" : "circle through the arc",
                          radius * 1e3, kClearance * 1e3);

@@ -523,22 +523,22 @@ TEST(GrindPlanner, LeadInAndOutKeepTheBurrOffTheWallWhileItPlungesAndLifts) {
   for (std::size_t i = r.segments[3].first_sample; i <= r.segments[3].last_sample; ++i)
     EXPECT_NEAR(-r.samples[i].X_CT.translation().x(), rad, 1e-12) << i;
   expect_trajectory_sound(robot, r);
-  // In a hole 0.3 mm wider than the burr the lead-in takes what room there is.
+  // A hole 0.3 mm wider than the burr leaves no room to step in: the burr would ream the fin
+  // ring in one plunge along the wall, so a smaller burr is asked for.
   const GrindResult h = plan_grind(robot, X_BC, hole_circle(rad + 0.3e-3, 72), P);
-  ASSERT_TRUE(h.ok()) << h.message;
-  EXPECT_NEAR(h.samples.front().axis_offset, rad + 0.3e-3, 1e-12);
-  // A 4 mm ring fin in a hole 0.4 mm wider than the burr: the roughing pass runs 0.3 mm off
-  // the wall (the finishing depth), leaving 0.1 mm for the lead-in; the finishing pass runs
-  // flush, and the lead-out takes the whole 0.4 mm before the retract lifts.
-  GrindPath ring = hole_circle(rad + 0.4e-3, 72);
+  EXPECT_EQ(h.status, GrindStatus::kToolTooLarge) << h.message;
+  // A 4 mm ring fin in a hole 0.6 mm wider than the burr: the roughing pass takes all the room
+  // (the burr's axis on the hole's centre, no lead-in); the finishing pass runs flush, and the
+  // lead-out steps off the whole lead clearance before the retract lifts.
+  GrindPath ring = hole_circle(rad + 0.6e-3, 72);
   ring.fin_height = 0.004;
   const GrindResult f = plan_grind(robot, X_BC, ring, P);
   ASSERT_TRUE(f.ok()) << f.message;
   ASSERT_EQ(f.passes, 2);
-  EXPECT_NEAR(f.samples.front().axis_offset, rad + 0.4e-3, 1e-12);
+  EXPECT_NEAR(f.samples.front().axis_offset, rad + 0.6e-3, 1e-12);
   EXPECT_EQ(f.segments.back().kind, SampleKind::kRetract);
   for (std::size_t i = f.segments.back().first_sample; i < f.samples.size(); ++i)
-    EXPECT_NEAR(f.samples[i].axis_offset, rad + 0.4e-3, 1e-12) << i;
+    EXPECT_NEAR(f.samples[i].axis_offset, rad + P.lead_clearance, 1e-12) << i;
 }
 
 TEST(GrindPlanner, PassesInAHoleStopAtItsCentre) {

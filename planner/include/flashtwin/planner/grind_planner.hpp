@@ -64,6 +64,7 @@ struct GrindParams {
   /// Lead-in/lead-out [m]: the approach comes down this far off the first pass's wall offset
   /// and steps in radially; the last pass steps off as far before the retract, so the burr
   /// never plunges or lifts along the wall it grinds (in a hole at most to the hole's centre).
+  /// A hole must leave the burr at least this much room (and 0.2 mm): kToolTooLarge otherwise.
   double lead_clearance = 0.5e-3;
   double lead = 0;                  ///< lead angle (shank toward the travel direction) [rad]
   double tilt = 0;                  ///< tilt angle (shank away from the wall) [rad]
@@ -149,7 +150,7 @@ enum class GrindStatus {
   kDiscontinuous,  ///< the chosen branch jumps (or is lost) between samples, not repairable
   kTimingFailed,   ///< time_parametrize refused the joint path (see message)
   kToolTooLarge,   ///< a hole (closed loop or open arc of ≥ 45°, wall facing inward) narrower
-                   ///< than the burr + 0.2 mm
+                   ///< than the burr + max(lead_clearance, 0.2 mm): no room to step in
 };
 
 /// Why a range of samples was re-oriented (or could not be).
