@@ -16,6 +16,9 @@ missing=()
 for p in "${PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
+# npm fetches three.js once for the 3D viewer (viewer/package.json). Debian's npm package,
+# unless an npm is already there (a Node.js from elsewhere brings its own and conflicts).
+command -v npm >/dev/null 2>&1 || missing+=(npm)
 if ((${#missing[@]})); then
   echo "install_deps: installing ${#missing[@]} missing package(s): ${missing[*]}"
   SUDO=""

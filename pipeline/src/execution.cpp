@@ -125,6 +125,8 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
       out.tracking_error.push_back(
           i < L.planned_tcp_W.size() ? (L.tcp_W[i] - L.planned_tcp_W[i]).norm() : 0.0);
       out.sensor_force.push_back(i < L.sensor_force_W.size() ? L.sensor_force_W[i].norm() : 0.0);
+      out.q.push_back(L.q[i]);
+      out.path.push_back(static_cast<int>(k));
     }
     sim_time += r.sim_time;
     wall += r.wall_time;

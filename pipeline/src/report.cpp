@@ -13,6 +13,7 @@
 #include "flashtwin/core/plot.hpp"
 #include "flashtwin/pipeline/run.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
+#include "flashtwin/pipeline/view3d.hpp"
 #include "flashtwin/sim/cell.hpp"
 #include "flashtwin/sim/process.hpp"
 #include "flashtwin/sim/views.hpp"
@@ -355,6 +356,7 @@ std::string write_report(const std::string& dir, const ReportInputs& in) {
     << "table{border-collapse:collapse;font-size:.9em}td,th{border:1px solid #ccc;padding:2px 8px;"
        "text-align:left}td.n{text-align:right;font-family:monospace}\n"
     << ".missing{width:400px;padding:2em;background:#eee}.fail{color:#c33;font-weight:bold}\n"
+    << "iframe.view3d{width:100%;height:760px;border:1px solid #ccc}\n"
     << "</style></head><body>\n";
   h << "<h1>flashtwin run: " << html_escape(sc.name) << "</h1>\n<p>"
     << html_escape(sc.description) << " &mdash; seed " << sc.seed << ", scenario file <code>"
@@ -371,6 +373,13 @@ std::string write_report(const std::string& dir, const ReportInputs& in) {
       h << "</ul>\n";
     }
   }
+  // The interactive 3D view: also DIR/view3d.html; here the same page inside the report.
+  const std::string view3d = view3d_html(in);
+  write_text_file((fs::path(dir) / "view3d.html").string(), view3d);
+  h << "<h2>3D view</h2>\n<p>Turn the part, switch layers, click a point to measure it; "
+       "the same view on its own: <code>view3d.html</code>.</p>\n"
+    << "<iframe class=\"view3d\" title=\"3D view\" srcdoc=\"" << html_escape(view3d)
+    << "\"></iframe>\n";
   h << "<h2>Renders</h2>\n";
   for (const auto& f : renders) h << figure_html(f);
   h << "<h2>Paths, motion, forces, residual</h2>\n";

@@ -36,6 +36,8 @@ struct ExecutionSummary {
   std::vector<double> tangential_force;   ///< [N]
   std::vector<double> tracking_error;     ///< [m] |executed − planned TCP| (position)
   std::vector<double> sensor_force;       ///< [N] |flange F/T force| (0 without the sensor)
+  std::vector<Vector6> q;                 ///< [rad] executed joint positions (the 3D view)
+  std::vector<int> path;                  ///< index of the detected path each row belongs to
   double target_force = 0;                ///< [N]
   sim::ResidualReport residual;
   /// The material after grinding (residual and gouge maps are read from it; null when

@@ -1,0 +1,106 @@
+// DIR/view3d.html opened as a reviewer opens it: from file://, in Debian's Chromium, headless
+// (software WebGL). The default scenario runs once with its report; the page must load
+// without a console error, list every layer with items, and each layer shown alone must draw
+// something (a screenshot that is not all background).
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <string>
+
+#define STB_IMAGE_IMPLEMENTATION
+#include <stb/stb_image.h>
+
+#include "test_util.hpp"
+
+namespace {
+
+std::string slurp(const std::string& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+int shell(const std::string& cmd) {
+  const int status = std::system(cmd.c_str());
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+// Headless Chromium as root in a container: no sandbox; WebGL on SwiftShader (no GPU here).
+std::string chromium(const std::string& what, const std::string& url, const std::string& err) {
+  return "chromium --headless --no-sandbox --disable-gpu --use-angle=swiftshader "
+         "--enable-unsafe-swiftshader --hide-scrollbars --window-size=1280,800 "
+         "--virtual-time-budget=15000 " + what + " '" + url + "' 2>" + err;
+}
+
+// The page's #ft-status JSON from a DOM dump (its text is HTML-escaped).
+nlohmann::json page_status(const std::string& dom) {
+  const std::string open = "id=\"ft-status\"";
+  auto at = dom.find(open);
+  if (at == std::string::npos) return {};
+  at = dom.find('>', at) + 1;
+  std::string text = dom.substr(at, dom.find("</pre>", at) - at);
+  for (const auto& [from, to] : {std::pair<std::string, std::string>{"&quot;", "\""},
+                                 {"&lt;", "<"}, {"&gt;", ">"}, {"&amp;", "&"}}) {
+    for (auto p = text.find(from); p != std::string::npos; p = text.find(from, p + to.size()))
+      text.replace(p, from.size(), to);
+  }
+  return nlohmann::json::parse(text, nullptr, false);
+}
+
+// Share of the 3D area's pixels (left of the 270 px panel, above the 44 px timeline) that
+// differ from the background colour.
+double drawn_fraction(const std::string& png) {
+  int w = 0, h = 0, n = 0;
+  unsigned char* px = stbi_load(png.c_str(), &w, &h, &n, 3);
+  if (!px) return -1;
+  std::size_t drawn = 0, all = 0;
+  for (int y = 0; y < h - 44; ++y)
+    for (int x = 0; x < w - 270; ++x) {
+      const unsigned char* p = px + 3 * (static_cast<std::size_t>(y) * w + x);
+      ++all;
+      drawn += std::abs(p[0] - 0xf4) + std::abs(p[1] - 0xf5) + std::abs(p[2] - 0xf7) > 12;
+    }
+  stbi_image_free(px);
+  return all ? static_cast<double>(drawn) / static_cast<double>(all) : -1;
+}
+
+}  // namespace
+
+TEST(View3d, EveryLayerOfTheDefaultRunDrawsInHeadlessChromium) {
+  const std::string dir = ftest::temp_dir("view3d");
+  const std::string sc = ftest::source_path("scenarios/default.yaml");
+  ASSERT_EQ(shell(std::string(FLASHTWIN_CLI) + " -q run " + sc + " -o " + dir + " >" + dir +
+                  "/run.log 2>&1"), 0) << slurp(dir + "/run.log");
+  const std::string page = dir + "/view3d.html";
+  ASSERT_TRUE(std::filesystem::exists(page));
+  const auto bytes = std::filesystem::file_size(page);
+  EXPECT_LT(bytes, 15u << 20) << "view3d.html is " << bytes << " bytes";
+  // The report carries the same view.
+  EXPECT_NE(slurp(dir + "/report.html").find("<iframe class=\"view3d\""), std::string::npos);
+
+  const std::string url = "file://" + page;
+  ASSERT_EQ(shell(chromium("--dump-dom", url, dir + "/dom.err") + " >" + dir + "/dom.html"), 0)
+      << slurp(dir + "/dom.err");
+  const nlohmann::json st = page_status(slurp(dir + "/dom.html"));
+  ASSERT_TRUE(st.is_object()) << "no #ft-status in the page's DOM: " << slurp(dir + "/dom.err");
+  EXPECT_TRUE(st.value("ready", false)) << st.dump();
+  EXPECT_TRUE(st["errors"].empty()) << st["errors"].dump();
+  for (const char* layer :
+       {"cad", "scan", "roots", "paths", "toolpath", "residual", "gouges", "robot"}) {
+    SCOPED_TRACE(layer);
+    ASSERT_TRUE(st["layers"].contains(layer)) << st.dump();
+    EXPECT_GT(st["layers"][layer]["count"].get<int>(), 0);
+    const std::string png = dir + "/layer_" + layer + ".png";
+    ASSERT_EQ(shell(chromium("--screenshot=" + png, url + "#only=" + layer,
+                             dir + "/shot_" + layer + ".err")), 0)
+        << slurp(dir + "/shot_" + layer + ".err");
+    // Points and lines of a layer cover little of the view; blank would be 0.
+    EXPECT_GT(drawn_fraction(png), 0.0005) << png;
+  }
+}
