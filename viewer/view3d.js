@@ -3,7 +3,8 @@
 // Everything is in the casting frame {C}, in millimetres.
 // URL hash options (for tests and benchmarks): #only=LAYER shows that layer alone, #hide=A,B
 // hides layers, #bench orbits the camera for 5 s and records the frame rate (also logged to
-// the console), #time=F puts the robot at the fraction F of the executed motion. #ft-status (hidden) holds a JSON summary: ready, layers
+// the console), #time=F puts the robot at the fraction F of the executed motion, #density=X
+// draws X times the default number of points (0.25, 0.5, 1, 2, 4, 8). #ft-status (hidden) holds a JSON summary: ready, layers
 // with their item counts, errors, fps.
 (function () {
   'use strict';
@@ -139,6 +140,8 @@
     layers.push({ key, name, object, count, swatch, pickable });
     status.layers[key] = { count };
   }
+  // Point layers draw a prefix of their (shuffled) points: base × the density factor.
+  const pointLayers = [];  // {object, stored, base}
   function pointsObject(xyz, colors, size) {
     const g = new THREE.BufferGeometry();
     g.setAttribute('position', new THREE.BufferAttribute(xyz, 3));
@@ -176,7 +179,7 @@
   }
 
   // Scan, coloured by perception's labels.
-  const labelColors = [[0.42, 0.48, 0.58], [1.0, 0.35, 0.0], [0.78, 0.78, 0.78]];
+  const labelColors = [[0.05, 0.2, 0.6], [1.0, 0.35, 0.0], [0.78, 0.78, 0.78]];
   const labelNames = ['body', 'flash', 'ignored (support, outlier, outside)'];
   let scanLabels = null;
   if (data.scan) {
@@ -185,9 +188,10 @@
     const col = new Float32Array(xyz.length);
     for (let i = 0; i < scanLabels.length; ++i) col.set(labelColors[Math.min(2, scanLabels[i])], 3 * i);
     const pts = pointsObject(xyz, col, 2);
+    pointLayers.push({ object: pts, stored: scanLabels.length, base: 20000 });
     addLayer('scan', 'Scan by label: body, flash, ignored (' + scanLabels.length + ' of ' + data.scan.total +
       ' points)', pts, scanLabels.length,
-      'linear-gradient(90deg,rgb(107,122,148) 33%,rgb(255,89,0) 33% 66%,rgb(199,199,199) 66%)', true);
+      'linear-gradient(90deg,rgb(62,124,203) 33%,rgb(255,89,0) 33% 66%,rgb(199,199,199) 66%)', true);
   }
 
   function polylineGroup(list, colorOf) {
@@ -245,13 +249,14 @@
     const col = new Float32Array(xyz.length);
     for (let i = 0; i < val.length; ++i) col.set(fn(val[i] / max), 3 * i);
     const pts = pointsObject(xyz, col, size);
+    pointLayers.push({ object: pts, stored: val.length, base: 8000 });
     maps[key] = { values: val, worst: d.worst, object: pts };
     addLayer(key, name + ' (' + d.total + ' voxels' + (d.worst ? ', max ' + d.worst.value.toFixed(2) + ' mm' : '') + ')',
       pts, val.length, css(fn(0.7)), true);
     if (d.worst) legend(name + ' [mm]', max, fn);
   }
-  if (data.residual) mapLayer('residual', 'Residual flash height', data.residual, ramp, 4);
-  if (data.gouges) mapLayer('gouges', 'Gouge depth', data.gouges, rampDeep, 3);
+  if (data.residual) mapLayer('residual', 'Residual flash height', data.residual, ramp, 3);
+  if (data.gouges) mapLayer('gouges', 'Gouge depth', data.gouges, rampDeep, 2);
 
   // The robot along the executed motion: links between the D-H frame origins, the spindle
   // from the flange to the TCP and the burr.
@@ -344,6 +349,30 @@
   function showLayer(key, on) {
     for (const L of layers) if (L.key === key) { L.object.visible = on; L.checkbox.checked = on; }
   }
+
+  // ---- Point density (the default keeps orbiting fluid in a software renderer).
+  const factors = [0.25, 0.5, 1, 2, 4, 8];
+  const densityDiv = document.createElement('div');
+  densityDiv.innerHTML = '<label>Point density <input type="range" id="ft-density" min="0" max="' +
+    (factors.length - 1) + '" step="1"></label> <span id="ft-density-label"></span>';
+  layersDiv.appendChild(densityDiv);
+  const densityInput = document.getElementById('ft-density');
+  function setDensity(k) {
+    const f = factors[k];
+    let drawn = 0;
+    for (const P of pointLayers) {
+      const n = Math.min(P.stored, Math.round(P.base * f));
+      P.object.geometry.setDrawRange(0, n);
+      drawn += n;
+    }
+    status.points_drawn = drawn;
+    document.getElementById('ft-density-label').textContent = '\u00d7' + f + ' (' + drawn + ' points)';
+    requestRender();
+  }
+  const k0 = hash.density ? factors.indexOf(Number(hash.density)) : 2;
+  densityInput.value = String(k0 >= 0 ? k0 : 2);
+  densityInput.addEventListener('input', () => setDensity(Number(densityInput.value)));
+  setDensity(Number(densityInput.value));
 
   // ---- Measuring click: the nearest visible pickable hit, its {C} coordinates and its
   // distance to the CAD (closest point over the CAD's triangles).
@@ -459,7 +488,9 @@
   if (hash.hide) for (const k of hash.hide.split(',')) showLayer(k, false);
   render();
   status.ready = true;
+  status.ready_ms = Math.round(performance.now());  // from navigation start
   report();
+  console.log('ft-ready ms=' + status.ready_ms);
   if (hash.bench) {
     let frames = 0;
     const t0 = performance.now(), theta0 = view.theta;

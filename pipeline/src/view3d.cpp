@@ -45,6 +45,18 @@ std::vector<std::size_t> thin(std::size_t n, std::size_t budget) {
   return idx;
 }
 
+// The same indices in a fixed pseudo-random order (Fisher-Yates with a 64-bit LCG, the same
+// on every platform) from position `from` on: any prefix is then an even sample of the whole,
+// so the page's density control draws the first N points.
+void shuffle_from(std::vector<std::size_t>& idx, std::size_t from) {
+  std::uint64_t state = 0x9e3779b97f4a7c15ull;
+  for (std::size_t i = idx.size(); i > from + 1; --i) {
+    state = state * 6364136223846793005ull + 1442695040888963407ull;
+    const std::size_t j = from + static_cast<std::size_t>((state >> 33) % (i - from));
+    std::swap(idx[i - 1], idx[j]);
+  }
+}
+
 json polyline(const std::vector<Vec3>& pts_C, bool closed) {
   std::vector<float> xyz;
   for (const auto& p : pts_C) push_mm(xyz, p);
@@ -67,7 +79,9 @@ json scan_layer(const ReportInputs& in, const View3dParams& P) {
   const Pose X_CM = in.result.registration.T_target_source;
   std::vector<float> xyz;
   std::vector<std::uint8_t> lab;
-  for (const std::size_t i : thin(cloud.size(), P.scan_points)) {
+  std::vector<std::size_t> keep = thin(cloud.size(), P.scan_points);
+  shuffle_from(keep, 0);
+  for (const std::size_t i : keep) {
     push_mm(xyz, X_CM * cloud.points[i].cast<double>());
     lab.push_back(i < labels.size() ? labels[i] : 2);
   }
@@ -75,8 +89,8 @@ json scan_layer(const ReportInputs& in, const View3dParams& P) {
 }
 
 // Material voxels with a value [mm] (height of residual flash above the CAD, depth of a gouge
-// below it), thinned to the budget after the extreme one is kept: the page's "worst" button
-// goes to it.
+// below it), thinned to the budget, the extreme one first (the page's "worst" button goes to
+// it), the rest shuffled.
 json map_layer(const std::vector<Vec3>& pts_C, const MeshBvh& cad, std::size_t budget) {
   std::vector<float> value(pts_C.size());
   std::size_t worst = 0;
@@ -86,7 +100,11 @@ json map_layer(const std::vector<Vec3>& pts_C, const MeshBvh& cad, std::size_t b
   }
   std::vector<float> xyz, val;
   std::vector<std::size_t> keep = thin(pts_C.size(), budget);
-  if (!pts_C.empty() && !std::binary_search(keep.begin(), keep.end(), worst)) keep.push_back(worst);
+  if (!pts_C.empty()) {  // the worst first, always drawn
+    keep.erase(std::remove(keep.begin(), keep.end(), worst), keep.end());
+    keep.insert(keep.begin(), worst);
+  }
+  shuffle_from(keep, 1);
   for (const std::size_t i : keep) {
     push_mm(xyz, pts_C[i]);
     val.push_back(value[i]);

@@ -12,11 +12,13 @@
 
 namespace flashtwin::pipeline {
 
-/// What goes into the page. The point budgets keep it fluid (≥ 20 frames/s orbiting the
-/// default run at 1280×800 in headless Chromium's software renderer: README, 3D view).
+/// What goes into the page: point layers are evenly decimated to these counts and stored in a
+/// shuffled order; the page draws a prefix of each (its density control; the default keeps it
+/// fluid: ≥ 20 frames/s orbiting the default run at 1280×800 in headless Chromium's software
+/// renderer, README "3D view").
 struct View3dParams {
-  std::size_t scan_points = 30000;  ///< scan points drawn at most (evenly decimated)
-  std::size_t map_points = 12000;   ///< residual flash / gouge voxels drawn at most, each
+  std::size_t scan_points = 150000;  ///< scan points stored at most
+  std::size_t map_points = 60000;    ///< residual flash / gouge voxels stored at most, each
   std::size_t robot_frames = 1500;   ///< keyframes of the executed motion at most
 };
 
