@@ -15,6 +15,6 @@ for ((i = 1; i <= runs; ++i)); do
   timeout 15 chromium --headless --no-sandbox --disable-gpu --use-angle=swiftshader \
     --enable-unsafe-swiftshader --hide-scrollbars --window-size=1280,800 \
     --enable-logging=stderr --v=0 "file://$page#bench$extra" 2>&1 |
-    grep -o "ft-ready ms=[0-9]*\|ft-bench .*" | tr '\n' ' ' || true
+    grep -o "ft-ready ms=[0-9]*\|ft-bench [^\"]*" | tr '\n' ' ' || true
   echo
 done

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
+#include <iomanip>
 #include <sstream>
 
 #include "flashtwin/core/errors.hpp"
@@ -357,12 +358,41 @@ std::string write_report(const std::string& dir, const ReportInputs& in) {
        "text-align:left}td.n{text-align:right;font-family:monospace}\n"
     << ".missing{width:400px;padding:2em;background:#eee}.fail{color:#c33;font-weight:bold}\n"
     << "iframe.view3d{width:100%;height:760px;border:1px solid #ccc}\n"
+    << ".summary{display:flex;gap:1em;align-items:flex-start;flex-wrap:wrap}\n"
+    << "table.five{font-size:1.2em;margin-top:.6em}table.five td{font-family:monospace;"
+       "text-align:right;padding:4px 12px}table.five th{font-weight:normal}\n"
     << "</style></head><body>\n";
   h << "<h1>flashtwin run: " << html_escape(sc.name) << "</h1>\n<p>"
     << html_escape(sc.description) << " &mdash; seed " << sc.seed << ", scenario file <code>"
     << html_escape(sc.file) << "</code></p>\n";
   h << "<p class=\"verdict " << (ok ? "ok" : "bad") << "\"><b>Verdict (exit " << res.exit_code
     << "):</b> " << html_escape(res.verdict) << "</p>\n";
+  // One screen: the five numbers that matter and the top view of what is left.
+  {
+    const auto num = [&](const char* key, double scale, int digits, const char* unit) {
+      if (!m.contains(key) || !m[key].is_number()) return std::string("n/a");
+      std::ostringstream os;
+      os << std::fixed << std::setprecision(digits) << m[key].get<double>() * scale << unit;
+      return os.str();
+    };
+    h << "<div class=\"summary\"><table class=\"five\">"
+      << "<tr><th>flash removed</th><td>" << num("removal.flash_removed_fraction", 100, 1, " %")
+      << "</td></tr><tr><th>highest residual flash</th><td>"
+      << num("removal.residual_flash_max_mm", 1, 2, " mm")
+      << "</td></tr><tr><th>deepest gouge</th><td>" << num("removal.gouge_max_mm", 1, 2, " mm")
+      << "</td></tr><tr><th>grinding program time<br><small>(the paths; moves between them are "
+         "not planned yet)</small></th><td>"
+      << num("trajectory.total_time_s", 1, 0, " s") << "</td></tr><tr><th>normal force RMS error"
+      << "<br><small>(vs the " << num("force.target_n", 1, 0, " N") << " target)</small></th><td>"
+      << num("force.rmse_n", 1, 1, " N") << "</td></tr></table>\n";
+    for (auto it = plots.begin(); it != plots.end(); ++it)
+      if (it->png.find("residual.png") != std::string::npos) {
+        h << figure_html(*it);
+        plots.erase(it);
+        break;
+      }
+    h << "</div>\n";
+  }
   const auto bad = check_expectations(sc, m);
   if (!sc.expect.empty()) {
     h << "<h2>Expectations</h2>\n<p>" << sc.expect.size() - bad.size() << " of "
