@@ -102,8 +102,8 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
     const sim::JointTrajectory tr = to_sim(g, setup.spec.X_WB);
     const double t0 = sim_time;
     if (frame_hook) {
-      ep.on_step = [&, t0](const mjModel* mm, mjData* d, double t) {
-        frame_hook(mm, d, t0 + t, grid);
+      ep.on_step = [&, t0, k = k](const mjModel* mm, mjData* d, double t) {
+        frame_hook(mm, d, t0 + t, grid, k);
       };
     }
     // The burr this path was planned for (a rack burr after a tool change; same length).

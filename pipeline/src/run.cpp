@@ -562,10 +562,15 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
       double duration = 0;
       for (const auto& p : planned_paths)
         duration += p.second.total_time + sc.execution.exec.settle_time;
-      video = std::make_unique<VideoRecorder>(opt.video, duration);
-      hook = [&video](const mjModel* mm, mjData* d, double t, const sim::MaterialGrid& grid) {
-        video->on_step(mm, d, t, grid);
-      };
+      VideoOptions vo = opt.video;
+      vo.camera = sc.video.camera;
+      vo.length = sc.video.length;
+      vo.width = sc.video.width;
+      vo.height = sc.video.height;
+      vo.fps = sc.video.fps;
+      video = std::make_unique<VideoRecorder>(vo, duration);
+      hook = [&video](const mjModel* mm, mjData* d, double t, const sim::MaterialGrid& grid,
+                      std::size_t path) { video->on_step(mm, d, t, grid, path); };
     }
     exec_summary = execute_plans(sc, ss, planned_paths, m, hook);
     if (video) {

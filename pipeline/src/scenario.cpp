@@ -396,6 +396,18 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
       sc.tool_rack.push_back(v);
     }
   }
+  if (root.has("video")) {
+    const ConfigNode v = root.at("video");
+    auto& vs = sc.video;
+    vs.camera = v.get_string("camera", vs.camera);
+    if (vs.camera.empty()) v.at("camera").fail("expected \"follow\" or a camera of the cell");
+    vs.length = v.get_double("length", 1, 600, vs.length);
+    vs.width = static_cast<int>(v.get_int("width", 16, 1920, vs.width));
+    vs.height = static_cast<int>(v.get_int("height", 16, 1080, vs.height));
+    if (vs.width % 2) v.at("width").fail("expected an even number of pixels (H.264)");
+    if (vs.height % 2) v.at("height").fail("expected an even number of pixels (H.264)");
+    vs.fps = static_cast<int>(v.get_int("fps", 1, 120, vs.fps));
+  }
   if (root.has("execution")) {
     const ConfigNode ex = root.at("execution");
     auto& e = sc.execution;

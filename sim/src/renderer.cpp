@@ -116,7 +116,11 @@ std::string camera_names(const mjModel* m) {
   for (int i = 0; i < m->ncam; ++i) {
     const char* name = mj_id2name(m, mjOBJ_CAMERA, i);
     if (!s.empty()) s += ", ";
-    s += name ? "'" + std::string(name) + "'" : "#" + std::to_string(i) + " (unnamed)";
+    if (name) {
+      s.append(1, '\'').append(name).append(1, '\'');
+    } else {
+      s.append("#").append(std::to_string(i)).append(" (unnamed)");
+    }
   }
   return s;
 }
@@ -212,14 +216,27 @@ int OffscreenRenderer::height() const {
   return impl_->height;
 }
 
+Image OffscreenRenderer::render(const mjData* data, const FreeCamera& camera,
+                                const PointOverlay* overlay) {
+  if (!camera.lookat_W.allFinite() || !(camera.distance > 0) || !std::isfinite(camera.azimuth) ||
+      !(std::abs(camera.elevation) < 90))
+    throw ArgumentError("renderer: expected a finite free camera with distance > 0 and "
+                        "elevation within (-90, 90) deg");
+  mjvCamera cam;
+  mjv_defaultCamera(&cam);
+  cam.type = mjCAMERA_FREE;
+  for (int k = 0; k < 3; ++k) cam.lookat[k] = camera.lookat_W[k];
+  cam.distance = camera.distance;
+  cam.azimuth = camera.azimuth;
+  cam.elevation = camera.elevation;
+  return render_camera(data, cam, overlay);
+}
+
 Image OffscreenRenderer::render(const mjData* data, const std::string& camera,
                                 const PointOverlay* overlay) {
   FT_ASSERT(data != nullptr);
-  Impl& s = *impl_;
-  const mjModel* m = s.model;
-
-  // Validate everything before touching OpenGL.
-  mjvCamera cam = s.free_cam;
+  const mjModel* m = impl_->model;
+  mjvCamera cam = impl_->free_cam;
   if (!camera.empty()) {
     const int id = mj_name2id(m, mjOBJ_CAMERA, camera.c_str());
     if (id < 0) {
@@ -233,6 +250,16 @@ Image OffscreenRenderer::render(const mjData* data, const std::string& camera,
     cam.type = mjCAMERA_FIXED;
     cam.fixedcamid = id;
   }
+  return render_camera(data, cam, overlay);
+}
+
+Image OffscreenRenderer::render_camera(const mjData* data, const mjvCamera& camera,
+                                       const PointOverlay* overlay) {
+  FT_ASSERT(data != nullptr);
+  Impl& s = *impl_;
+  const mjModel* m = s.model;
+  mjvCamera cam = camera;
+  // Validate everything before touching OpenGL.
   if (overlay) check_overlay(*overlay);
 
   // Another renderer of this thread may have bound its own context since the last frame.

@@ -48,9 +48,10 @@ struct ExecutionSummary {
 };
 
 /// Optional per-frame hook for the video: called with the MuJoCo model/data of the running
-/// execution, the simulated time since the run's start and the material grid.
+/// execution, the simulated time since the run's start, the material grid and the index of
+/// the detected path being ground.
 using FrameHook = std::function<void(const mjModel* model, mjData* data, double t,
-                                     const sim::MaterialGrid& grid)>;
+                                     const sim::MaterialGrid& grid, std::size_t path)>;
 
 /// Runs the planned paths (in order, each from rest at its first sample: moves between paths
 /// are not simulated), fills the metrics and returns the logs.

@@ -84,6 +84,15 @@ struct Scenario {
   /// largest rack burr that fits (a tool change in the job). Default: 8 and 6 mm burrs.
   std::vector<double> tool_rack{0.004, 0.003};
   ExecutionSettings execution;            ///< `execution:` and `process:` overrides
+  /// `video:` how `flashtwin run --video` films the execution.
+  struct VideoSettings {
+    /// "follow": a camera that follows the burr from where the casting does not hide it
+    /// (spindle translucent); otherwise the name of a cell camera ("casting_closeup", ...).
+    std::string camera = "follow";
+    double length = 12;          ///< [s] of video: the run is sped up to fit
+    int width = 800, height = 600;  ///< [px], even
+    int fps = 20;
+  } video;
   std::vector<Expectation> expect;        ///< `expect:` bounds checked by regression runs
   SweepExpectation expect_sweep;          ///< `expect_sweep:` distribution bounds over seeds
 };

@@ -2,7 +2,10 @@
 // The run's video: OSMesa frames of the cell while the arm grinds, piped into ffmpeg (H.264
 // MP4). The flash is drawn from the process model's voxel grid, so it visibly disappears where
 // the burr has passed: the cell's static flash mesh is hidden and a fixed sample of the flash
-// voxels is drawn as small spheres for as long as their voxel still holds flash.
+// voxels is drawn as small cubes for as long as their voxel still holds flash. The default
+// camera follows the burr from the side where the casting does not hide it (the spindle drawn
+// translucent), and each frame carries an overlay: time, path, TCP speed, the flange F/T
+// sensor's force and the share of the flash removed.
 #include <memory>
 #include <string>
 #include <vector>
@@ -22,7 +25,9 @@ struct VideoOptions {
   int width = 800, height = 600;          ///< [px], even numbers (H.264 4:2:0)
   int fps = 20;
   double length = 12;                     ///< [s] target video length: the run is sped up to fit
-  std::string camera = "casting_closeup";
+  /// "follow" (see above) or a camera of the cell ("casting_closeup", "overview", ...).
+  std::string camera = "follow";
+  double follow_distance = 0.25;          ///< [m] of the follow camera from the burr
   int flash_points = 1200;                ///< flash voxels drawn (each sphere costs render time)
   double point_radius = 0.0009;           ///< [m]
 };
@@ -41,8 +46,10 @@ class VideoRecorder {
   VideoRecorder(const VideoRecorder&) = delete;
   VideoRecorder& operator=(const VideoRecorder&) = delete;
 
-  /// Called every simulation step; renders when the next frame is due (t: run time [s]).
-  void on_step(const mjModel* model, mjData* data, double t, const sim::MaterialGrid& grid);
+  /// Called every simulation step; renders when the next frame is due (t: run time [s],
+  /// path: the detected path being ground, for the overlay).
+  void on_step(const mjModel* model, mjData* data, double t, const sim::MaterialGrid& grid,
+               std::size_t path = 0);
 
   /// Closes the stream; returns the number of frames. @throws IoError when ffmpeg failed.
   std::size_t finish();
@@ -58,6 +65,12 @@ class VideoRecorder {
   std::unique_ptr<sim::OffscreenRenderer> renderer_;
   std::vector<Vec3> flash_sample_C_;
   Pose X_WC_ = Pose::Identity();
+  // Follow camera: smoothed view angles [deg] and the previous TCP (for its speed).
+  bool have_view_ = false;
+  double azimuth_ = 0, elevation_ = -30;
+  Vec3 last_tcp_W_ = Vec3::Zero();
+  double last_t_ = -1;
+  std::size_t flash_initial_ = 0;
 };
 
 }  // namespace flashtwin::pipeline

@@ -26,6 +26,16 @@ struct PointOverlay {
                                ///< scene's free geom slots: MuJoCo scene geom budget)
 };
 
+/// A free camera (MuJoCo's mjCAMERA_FREE): it looks at `lookat_W` from `distance` away, its
+/// viewing direction turned `azimuth` about +z from +x and tilted `elevation` above the
+/// horizontal (negative: looking down).
+struct FreeCamera {
+  Vec3 lookat_W = Vec3::Zero();  ///< [m]
+  double distance = 0.5;         ///< [m], > 0
+  double azimuth = 0;            ///< [deg]
+  double elevation = -30;        ///< [deg], within (-90, 90)
+};
+
 /// An OSMesa (software OpenGL) context plus MuJoCo's scene and rendering context for one
 /// model; renders into MuJoCo's offscreen framebuffer, so no X display is needed.
 ///
@@ -57,6 +67,10 @@ class OffscreenRenderer {
   ///   radius is not > 0 or max_points < 0.
   Image render(const mjData* data, const std::string& camera,
                const PointOverlay* overlay = nullptr);
+  /// The same from a free camera. @throws ArgumentError when the camera is not finite or its
+  /// distance is not > 0.
+  Image render(const mjData* data, const FreeCamera& camera,
+               const PointOverlay* overlay = nullptr);
 
   int width() const;
   int height() const;
@@ -64,6 +78,7 @@ class OffscreenRenderer {
   struct Impl;
 
  private:
+  Image render_camera(const mjData* data, const mjvCamera& camera, const PointOverlay* overlay);
   std::unique_ptr<Impl> impl_;
 };
 
