@@ -37,7 +37,17 @@
   // ---- Renderer, camera, lights.
   const host = document.getElementById('ft-view');
   // No multisampling: in a software renderer (SwiftShader) it costs more than the points.
-  const renderer = new THREE.WebGLRenderer({ antialias: false });
+  let renderer;
+  try {
+    renderer = new THREE.WebGLRenderer({ antialias: false });
+  } catch (e) {
+    document.getElementById('ft-view').innerHTML = '<p style="padding:2em">This browser gives the ' +
+      'page no WebGL context, so the 3D view cannot be drawn (' + String(e.message || e) + '). ' +
+      'Enable WebGL (hardware or software rendering) and reload.</p>';
+    status.errors.push('no WebGL: ' + String(e.message || e));
+    report();
+    return;
+  }
   renderer.setPixelRatio(window.devicePixelRatio || 1);
   host.appendChild(renderer.domElement);
   const scene = new THREE.Scene();
