@@ -59,8 +59,9 @@ TEST(Readers, YamlAliasCyclesAndExpansionBombsAreConfigErrors) {
   std::string bomb = "l0: &a0 [x, x, x, x, x, x, x, x, x]\n";
   for (int i = 1; i <= 9; ++i) {
     const std::string p = "*a" + std::to_string(i - 1);
-    bomb += "l" + std::to_string(i) + ": &a" + std::to_string(i) + " [" + p;
-    for (int k = 1; k < 9; ++k) bomb += ", " + p;
+    bomb.append("l").append(std::to_string(i)).append(": &a").append(std::to_string(i));
+    bomb.append(" [").append(p);
+    for (int k = 1; k < 9; ++k) bomb.append(", ").append(p);
     bomb += "]\n";
   }
   EXPECT_THROW(ConfigNode::load_string(bomb, "bomb.yaml"), ConfigError);

@@ -2,8 +2,6 @@
 // scenario's video: block (length, size) and the overlay on every frame; a bad video: block is
 // refused before anything runs.
 #include <gtest/gtest.h>
-#include <sys/wait.h>
-
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -14,21 +12,8 @@
 
 #include "test_util.hpp"
 
-namespace {
-
-std::string slurp(const std::string& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
-int shell(const std::string& cmd) {
-  const int status = std::system(cmd.c_str());
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
-
-}  // namespace
+using ftest::shell;
+using ftest::slurp;
 
 TEST(VideoRun, FollowCameraFilmsTheRunWithItsOverlay) {
   const std::string dir = ftest::temp_dir("video_run");

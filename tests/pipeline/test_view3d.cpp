@@ -3,8 +3,6 @@
 // without a console error, list every layer with items, and each layer shown alone must draw
 // something (a screenshot that is not all background).
 #include <gtest/gtest.h>
-#include <sys/wait.h>
-
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -17,19 +15,10 @@
 
 #include "test_util.hpp"
 
+using ftest::shell;
+using ftest::slurp;
+
 namespace {
-
-std::string slurp(const std::string& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
-int shell(const std::string& cmd) {
-  const int status = std::system(cmd.c_str());
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
 
 // Headless Chromium as root in a container: no sandbox; WebGL on SwiftShader (no GPU here).
 std::string chromium(const std::string& what, const std::string& url, const std::string& err) {
