@@ -4,7 +4,8 @@
 // URL hash options (for tests and benchmarks): #only=LAYER shows that layer alone, #hide=A,B
 // hides layers, #bench orbits the camera for 5 s and records the frame rate (also logged to
 // the console), #time=F puts the robot at the fraction F of the executed motion, #density=X
-// draws X times the default number of points (0.25, 0.5, 1, 2, 4, 8). #ft-status (hidden) holds a JSON summary: ready, layers
+// draws X times the default number of points (0.25, 0.5, 1, 2, 4, 8), #go=residual|gouges
+// presses that "worst" button. #ft-status (hidden) holds a JSON summary: ready, layers
 // with their item counts, errors, fps.
 (function () {
   'use strict';
@@ -434,7 +435,7 @@
     document.getElementById('ft-measure').textContent =
       what + '\nx ' + p.x.toFixed(3) + '\ny ' + p.y.toFixed(3) + '\nz ' + p.z.toFixed(3) +
       ' mm\ndistance to CAD ' + (isNaN(d) ? 'n/a' : d.toFixed(3) + ' mm');
-    status.measure = { xyz: [p.x, p.y, p.z], distance_to_cad: d };
+    status.measure = { xyz: [p.x, p.y, p.z], distance_to_cad: d, what };
     report();
     requestRender();
   }
@@ -496,6 +497,8 @@
     else if (hash.only === 'robot') fitTo(new THREE.Box3().setFromObject(L.object));
   }
   if (hash.hide) for (const k of hash.hide.split(',')) showLayer(k, false);
+  // #go=residual|gouges presses that "worst" button (tests read the measurement in #ft-status).
+  if (hash.go) document.getElementById(hash.go === 'residual' ? 'ft-worst-res' : 'ft-worst-gouge').click();
   render();
   status.ready = true;
   status.ready_ms = Math.round(performance.now());  // from navigation start
