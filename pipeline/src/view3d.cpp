@@ -3,13 +3,11 @@
 #include <algorithm>
 #include <cstdint>
 #include <cstring>
-#include <filesystem>
 #include <sstream>
 #include <vector>
 
 #include <nlohmann/json.hpp>
 
-#include "flashtwin/core/io.hpp"
 #include "flashtwin/core/mesh_query.hpp"
 #include "flashtwin/pipeline/run.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
@@ -215,11 +213,5 @@ std::string view3d_html(const ReportInputs& in, const View3dParams& params) {
   return h.str();
 }
 
-std::string write_view3d(const std::string& dir, const ReportInputs& in,
-                         const View3dParams& params) {
-  const std::string path = (std::filesystem::path(dir) / "view3d.html").string();
-  write_text_file(path, view3d_html(in, params));
-  return path;
-}
 
 }  // namespace flashtwin::pipeline

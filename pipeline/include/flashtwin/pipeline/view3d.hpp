@@ -22,12 +22,7 @@ struct View3dParams {
   std::size_t robot_frames = 1500;   ///< keyframes of the executed motion at most
 };
 
-/// The page as one HTML string.
+/// The page as one HTML string (write_report writes it to DIR/view3d.html and embeds it).
 std::string view3d_html(const ReportInputs& in, const View3dParams& params = {});
-
-/// Writes DIR/view3d.html; returns its path.
-/// @throws IoError when the file cannot be written.
-std::string write_view3d(const std::string& dir, const ReportInputs& in,
-                         const View3dParams& params = {});
 
 }  // namespace flashtwin::pipeline
