@@ -213,5 +213,4 @@ std::string view3d_html(const ReportInputs& in, const View3dParams& params) {
   return h.str();
 }
 
-
 }  // namespace flashtwin::pipeline
