@@ -316,6 +316,75 @@ void snap_to_circle(FlashPath& path, const Vec3& w, const MeshBvh& cad_C, double
   P = std::move(out);
 }
 
+// The direction an open path leaves at one end (front: towards its first point), from its
+// points within `span` of that end; zero when they do not reach that far.
+Vec3 path_end_direction(const FlashPath& p, bool front, double span) {
+  const auto& q = p.points_C;
+  const Vec3& end = front ? q.front() : q.back();
+  for (std::size_t k = 1; k < q.size(); ++k) {
+    const Vec3& inner = front ? q[k] : q[q.size() - 1 - k];
+    if ((inner - end).norm() >= span) return (end - inner).normalized();
+  }
+  return Vec3::Zero();
+}
+
+// One fin's root split between regions (a region boundary where two views' points meet, a
+// stretch seen by one view only) comes out as open paths that continue each other; ground
+// apart, each end has its own approach and retract, and the finishing pass of the first runs
+// its end into the next one's fin still standing at full height (housing 7015: 95 N at the
+// end, the arm pushed 0.13 mm into the wall). Open paths whose ends lie within `reach` of each
+// other, both leaving within 30° of the same line and with fin planes within 20°, become one:
+// the second's points that lie behind the junction (overlapping ends) are dropped. Returns how
+// many paths were joined into others.
+int join_continuing_paths(std::vector<FlashPath>& paths, double reach, double span) {
+  const double cos30 = std::cos(M_PI / 6), cos20 = std::cos(M_PI / 9);
+  int joined = 0;
+  for (bool again = true; again;) {
+    again = false;
+    for (std::size_t i = 0; i < paths.size() && !again; ++i) {
+      for (std::size_t j = 0; j < paths.size() && !again; ++j) {
+        FlashPath& a = paths[i];
+        FlashPath& b = paths[j];
+        if (i == j || a.closed || b.closed || a.points_C.size() < 2 || b.points_C.size() < 2) continue;
+        if (std::abs(a.fin_normal_C.dot(b.fin_normal_C)) < cos20) continue;
+        // a's back end meets b's front end (the other pairings by reversing either).
+        for (int flip = 0; flip < 4 && !again; ++flip) {
+          const bool a_front = flip & 1, b_back = flip & 2;
+          const Vec3 ea = a_front ? a.points_C.front() : a.points_C.back();
+          const Vec3 eb = b_back ? b.points_C.back() : b.points_C.front();
+          if ((ea - eb).norm() > reach) continue;
+          const Vec3 ta = path_end_direction(a, a_front, span);   // leaving a
+          const Vec3 tb = path_end_direction(b, !b_back, span);   // leaving b, towards a
+          if (ta.isZero() || tb.isZero() || ta.dot(-tb) < cos30) continue;
+          FlashPath m = a;
+          if (a_front) {
+            std::reverse(m.points_C.begin(), m.points_C.end());
+            std::reverse(m.normals_C.begin(), m.normals_C.end());
+          }
+          std::vector<Vec3> bp = b.points_C, bn = b.normals_C;
+          if (b_back) {
+            std::reverse(bp.begin(), bp.end());
+            std::reverse(bn.begin(), bn.end());
+          }
+          const Vec3 junction = m.points_C.back();
+          for (std::size_t k = 0; k < bp.size(); ++k) {
+            if ((bp[k] - junction).dot(ta) <= 0.25 * span) continue;  // behind the junction
+            m.points_C.push_back(bp[k]);
+            m.normals_C.push_back(bn[k]);
+          }
+          m.fin_height = std::max(a.fin_height, b.fin_height);
+          orient_path(m);
+          a = std::move(m);
+          paths.erase(paths.begin() + static_cast<std::ptrdiff_t>(j));
+          ++joined;
+          again = true;
+        }
+      }
+    }
+  }
+  return joined;
+}
+
 // Arcs of one hole's ring seen by different views come out as separate open paths, the parts
 // between them unseen. Open paths that lie on one circle (a joint fit within `fit_tol`, CAD
 // normals facing its centre: a hole wall, fin normals within 10°) become one path: the points
@@ -1396,6 +1465,11 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
     const int joined = merge_hole_arcs(res.paths, cad_C, std::max(P.path_voxel, res.spacing),
                                        std::max(0.15e-3, 3 * res.noise_sigma));
     if (joined > 0) spdlog::debug("detect: {} arc(s) of hole rings joined to others", joined);
+  }
+  {
+    const double step = std::max(P.path_voxel, res.spacing);
+    const int joined = join_continuing_paths(res.paths, std::max(2e-3, 3 * step), 4 * step);
+    if (joined > 0) spdlog::debug("detect: {} path(s) joined to the paths they continue", joined);
   }
   res.ran = true;
   if (res.paths.empty()) res.message = "nothing to grind: no flash region found";

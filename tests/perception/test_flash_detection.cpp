@@ -2,6 +2,7 @@
 // from above would see them (upward and sideways faces), with Gaussian noise along the normal.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <utility>
 #include <vector>
@@ -570,4 +571,58 @@ TEST(FlashDetection, OrderPolylinesSplitsAtGapsAndClosesLoops) {
       EXPECT_LT((l.points[i] - l.points[i - 1]).norm(), 0.002);
   }
   EXPECT_EQ(closed, 1);
+}
+
+namespace {
+// An open path along x on the wall y = 0 (outward normal -y), fin plane z = 7 mm.
+FlashPath line_path(double x0, double x1, double step) {
+  FlashPath p;
+  p.fin_normal_C = Vec3::UnitZ();
+  const int n = static_cast<int>(std::round(std::abs(x1 - x0) / step));
+  for (int i = 0; i <= n; ++i) {
+    p.points_C.emplace_back(x0 + (x1 - x0) * i / n, 0.0, 0.007);
+    p.normals_C.emplace_back(0.0, -1.0, 0.0);
+  }
+  return p;
+}
+}  // namespace
+
+TEST(FlashDetection, PathsThatContinueEachOtherBecomeOne) {
+  // Housing 7015: one straight root split between regions as paths ending 0.7 mm apart, the
+  // second running back over the first's end; ground apart, the first's finishing pass ran
+  // into the second's standing fin and pushed the arm into the wall (gouge 0.12 mm).
+  std::vector<FlashPath> paths = {line_path(0.0, 0.05, 4e-4), line_path(0.0493, 0.08, 4e-4)};
+  std::reverse(paths[1].points_C.begin(), paths[1].points_C.end());  // either direction
+  paths[1].fin_height = 0.004;
+  // A parallel path 5 mm off (another fin), a path at right angles at the end and a closed
+  // loop nearby are left alone.
+  FlashPath parallel = line_path(0.051, 0.07, 4e-4);
+  for (auto& q : parallel.points_C) q.y() = 0.005;
+  FlashPath corner = line_path(0.0, 0.02, 4e-4);
+  for (auto& q : corner.points_C) q = Vec3(0.0806, q.x(), q.z());
+  FlashPath loop = line_path(0.0494, 0.052, 4e-4);  // its ends by the junction, but closed
+  loop.closed = true;
+  for (auto& q : loop.points_C) q.y() = 0.001;
+  paths.push_back(parallel);
+  paths.push_back(corner);
+  paths.push_back(loop);
+  EXPECT_EQ(join_continuing_paths(paths, 2e-3, 1.6e-3), 1);
+  ASSERT_EQ(paths.size(), 4u);
+  const FlashPath& m = paths[0];
+  EXPECT_FALSE(m.closed);
+  EXPECT_EQ(m.fin_height, 0.004);
+  // One line from 0 to 80 mm, monotonic (the overlap dropped), normals kept with their points.
+  double lo = 1, hi = -1;
+  for (std::size_t k = 0; k < m.points_C.size(); ++k) {
+    lo = std::min(lo, m.points_C[k].x());
+    hi = std::max(hi, m.points_C[k].x());
+    EXPECT_NEAR(m.normals_C[k].y(), -1.0, 1e-12);
+    if (k > 0) {
+      const double dx = m.points_C[k].x() - m.points_C[k - 1].x();
+      EXPECT_GT(std::abs(dx), 1e-5) << k;
+      EXPECT_EQ(dx > 0, m.points_C[1].x() > m.points_C[0].x()) << k;
+    }
+  }
+  EXPECT_NEAR(lo, 0.0, 1e-9);
+  EXPECT_NEAR(hi, 0.08, 1e-9);
 }

@@ -126,6 +126,13 @@ struct Polyline {
 };
 std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double gap);
 
+/// Joins open paths that continue each other (one root split between regions): ends within
+/// `reach` [m], both leaving within 30° of one line (directions from the points within `span`
+/// [m] of each end), fin planes within 20°; the later path's points behind the junction are
+/// dropped and the joined path is oriented as detect_flash orients paths. Returns how many
+/// paths were joined into others (removed from `paths`).
+int join_continuing_paths(std::vector<FlashPath>& paths, double reach, double span);
+
 /// 2-D alpha shape (rolling circle of radius alpha): flags of the points a circle of that
 /// radius touches with no other point inside. `uv` holds the points in the fin plane [m].
 std::vector<bool> alpha_boundary(const std::vector<Eigen::Vector2d>& uv, double alpha,
