@@ -14,10 +14,10 @@ export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=1
 # Options given turn targets on; without them the build folder keeps what it had.
 BUILD=build
 OPTS=()
-EXTRA=()  # packages only the tests need: Chromium opens view3d.html headless
+EXTRA=()  # packages only the tests need: Chromium and Firefox (software WebGL on Mesa's EGL) open view3d.html headless
 for a in "$@"; do
   case "$a" in
-    --tests) OPTS+=(-DFLASHTWIN_BUILD_TESTS=ON); EXTRA=(chromium) ;;
+    --tests) OPTS+=(-DFLASHTWIN_BUILD_TESTS=ON); EXTRA=(chromium firefox-esr libegl1 libegl-mesa0 libgl1-mesa-dri) ;;
     --bench) OPTS+=(-DFLASHTWIN_BUILD_BENCH=ON) ;;
     # A build of its own: sanitized objects never mix with the normal build's.
     --sanitize) BUILD=build-asan; OPTS+=(-DFLASHTWIN_BUILD_TESTS=ON -DFLASHTWIN_SANITIZE=ON) ;;

@@ -5,13 +5,20 @@
 // hides layers, #bench orbits the camera for 5 s and records the frame rate (also logged to
 // the console), #time=F puts the robot at the fraction F of the executed motion, #density=X
 // draws X times the default number of points (0.25, 0.5, 1, 2, 4, 8), #go=residual|gouges
-// presses that "worst" button. #ft-status (hidden) holds a JSON summary: ready, layers
-// with their item counts, errors, fps.
+// presses that "worst" button, #pixels records the share of drawn pixels (drawn_fraction),
+// #log also logs the status to the console. #ft-status (hidden) holds a JSON summary: ready,
+// layers with their item counts, errors, fps.
 (function () {
   'use strict';
   const status = { ready: false, errors: [], layers: {}, fps: null };
   const statusEl = document.getElementById('ft-status');
-  const report = () => { statusEl.textContent = JSON.stringify(status); };
+  // #log (parsed below, before anything can fail) also writes the status to the console, for
+  // browsers whose headless mode dumps no DOM (Firefox).
+  const logStatus = /(^#|&)log(&|=|$)/.test(window.location.hash);
+  const report = () => {
+    statusEl.textContent = JSON.stringify(status);
+    if (logStatus) console.log('ft-status ' + statusEl.textContent);
+  };
   window.addEventListener('error', (e) => { status.errors.push(String(e.message)); report(); });
   window.addEventListener('unhandledrejection', (e) => {
     status.errors.push('unhandled rejection: ' + String(e.reason)); report();
@@ -73,6 +80,20 @@
   }
   let pending = false;
   function render() { placeCamera(); renderer.render(scene, camera); }
+
+  // Share of the view's pixels that differ from the background, read from the drawing buffer
+  // right after render() (before the browser presents and clears it): #pixels checks that a
+  // layer draws where a headless screenshot cannot see WebGL (Firefox).
+  function drawnFraction() {
+    const gl = renderer.getContext();
+    const w = gl.drawingBufferWidth, h = gl.drawingBufferHeight;
+    const px = new Uint8Array(4 * w * h);
+    gl.readPixels(0, 0, w, h, gl.RGBA, gl.UNSIGNED_BYTE, px);
+    let drawn = 0;
+    for (let i = 0; i < px.length; i += 4)
+      drawn += Math.abs(px[i] - 0xf4) + Math.abs(px[i + 1] - 0xf5) + Math.abs(px[i + 2] - 0xf7) > 12;
+    return w * h > 0 ? drawn / (w * h) : 0;
+  }
   function requestRender() {
     if (pending) return;
     pending = true;
@@ -500,6 +521,7 @@
   // #go=residual|gouges presses that "worst" button (tests read the measurement in #ft-status).
   if (hash.go) document.getElementById(hash.go === 'residual' ? 'ft-worst-res' : 'ft-worst-gouge').click();
   render();
+  if (hash.pixels) status.drawn_fraction = drawnFraction();
   status.ready = true;
   status.ready_ms = Math.round(performance.now());  // from navigation start
   report();
