@@ -90,6 +90,50 @@ Plane fit_plane(const std::vector<Vec3>& pts) {
   return pl;
 }
 
+// The plane of a fin region: the plane through three of its points that most points lie
+// within `band` of (RANSAC, 256 draws from a fixed seed over at most 4000 of the points), refitted
+// by least squares to those within the band. A region whose points reach a fixture standing
+// beside its fin (round_flange 6115: a clamp block's face and top, up to 17 mm above the fin)
+// tilted the plain fit by 15°; the mid-plane then climbed 9 mm off the root along a 230 mm rim.
+// The plain fit stands when the consensus plane holds fewer points than it does.
+Plane fit_fin_plane(const std::vector<Vec3>& pts, double band) {
+  const Plane plain = fit_plane(pts);
+  if (pts.size() < 10) return plain;
+  const auto count = [&](const Plane& pl) {
+    std::size_t k = 0;
+    for (const auto& p : pts) k += std::abs(pl.dist(p)) <= band;
+    return k;
+  };
+  std::vector<std::size_t> sub;
+  const std::size_t stride = std::max<std::size_t>(1, pts.size() / 4000);
+  for (std::size_t i = 0; i < pts.size(); i += stride) sub.push_back(i);
+  Rng rng(0x5eed);
+  Plane best;
+  std::size_t best_k = 0;
+  for (int it = 0; it < 256; ++it) {
+    const auto pick = [&] { return sub[static_cast<std::size_t>(rng.uniform() * sub.size()) % sub.size()]; };
+    const Vec3 &a = pts[pick()], &b = pts[pick()], &c = pts[pick()];
+    const Vec3 n = (b - a).cross(c - a);
+    if (n.norm() < 1e-9) continue;
+    Plane cand;
+    cand.c = a;
+    cand.n = n.normalized();
+    std::size_t k = 0;
+    for (std::size_t i : sub) k += std::abs(cand.dist(pts[i])) <= band;
+    if (k > best_k) {
+      best_k = k;
+      best = cand;
+    }
+  }
+  if (best_k == 0) return plain;
+  std::vector<Vec3> in;
+  for (const auto& p : pts)
+    if (std::abs(best.dist(p)) <= band) in.push_back(p);
+  if (in.size() < 3) return plain;
+  const Plane refit = fit_plane(in);
+  return count(refit) > count(plain) ? refit : plain;
+}
+
 // Support planes (table, fixture faces): RANSAC planes through many candidates with the whole
 // CAD model on one side; a fin's plane cuts through the part, so it is never taken for one.
 // A support removes its own points and the candidates behind it, but only over its footprint:
@@ -383,6 +427,37 @@ int join_continuing_paths(std::vector<FlashPath>& paths, double reach, double sp
     }
   }
   return joined;
+}
+
+// A fin cannot stand on a face parallel to it. Where the root runs along an edge (a parting
+// line just under a top face) the CAD triangle nearest a root point can be that face: such a
+// point takes the wall normal of the nearest point along the path that has a wall's normal
+// (round_flange 6115: the normals turned to +z halfway along a rim's flat, every IK branch then
+// had to swing the wrist by 1.8 rad at the switch, and the fin stayed whole).
+int repair_fin_parallel_normals(FlashPath& path, const Vec3& fin_normal_C) {
+  const double lim = std::cos(M_PI / 6);  // within 30°: as the region's root snaps (on_wall)
+  const std::size_t n = path.normals_C.size();
+  std::vector<std::size_t> walls;
+  for (std::size_t i = 0; i < n; ++i)
+    if (std::abs(path.normals_C[i].dot(fin_normal_C)) <= lim) walls.push_back(i);
+  if (walls.empty() || walls.size() == n) return 0;
+  const std::vector<Vec3> before = path.normals_C;
+  int repaired = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (std::abs(before[i].dot(fin_normal_C)) <= lim) continue;
+    std::size_t best = walls.front(), best_d = n;
+    for (std::size_t j : walls) {
+      std::size_t d = i > j ? i - j : j - i;
+      if (path.closed) d = std::min(d, n - d);
+      if (d < best_d) {
+        best_d = d;
+        best = j;
+      }
+    }
+    path.normals_C[i] = before[best];
+    ++repaired;
+  }
+  return repaired;
 }
 
 // Arcs of one hole's ring seen by different views come out as separate open paths, the parts
@@ -1173,7 +1248,27 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       height[i] = d < far ? d : cad_C.closest(pts[i]).distance;
       hmax = std::max(hmax, height[i]);
     }
-    const Plane fin = fit_plane(pts);
+    // Fins are at most 1.5 mm thick: a fin's points lie within 1.5 mm of its plane.
+    const Plane fin = fit_fin_plane(pts, 1.5e-3);
+    // Points more than 3 mm off the fin's plane are not the fin (a fixture's face beside it:
+    // its top, taken for the fin's outer edge, put 6115's mid-plane 7 mm above the root).
+    {
+      std::size_t k = 0;
+      hmax = 0;
+      for (std::size_t i = 0; i < cl.size(); ++i) {
+        if (std::abs(fin.dist(pts[i])) > 3e-3) continue;
+        cl[k] = cl[i];
+        pts[k] = pts[i];
+        height[k] = height[i];
+        hmax = std::max(hmax, height[k]);
+        ++k;
+      }
+      if (k < cl.size())
+        spdlog::debug("detect: {} of a region's {} points lie off its fin plane: dropped", cl.size() - k, cl.size());
+      cl.resize(k);
+      pts.resize(k);
+      height.resize(k);
+    }
     FlashRegion reg;
     reg.points.reserve(cl.size());
     for (auto s : cl) reg.points.push_back(crop[cand[live[s]]]);
@@ -1243,8 +1338,9 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
         inner_n.push_back(cad.triangle_normal(static_cast<std::size_t>(cp.triangle)));
       }
     }
-    spdlog::debug("detect: region of {} points, {} near the CAD, {} boundary, {} inner", cl.size(),
-                  touching, reg.boundary_points, inner.size());
+    spdlog::debug("detect: region of {} points, {} near the CAD, {} boundary, {} inner, fin normal ({:.3f}, {:.3f}, {:.3f})",
+                  cl.size(), touching, reg.boundary_points, inner.size(), reg.normal_C.x(),
+                  reg.normal_C.y(), reg.normal_C.z());
     if (inner.size() < 3) {
       // Flash (it stands off the casting and touches it) whose root is nowhere on a wall seen:
       // labelled, but it gives no grinding line.
@@ -1423,6 +1519,8 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
         path.points_C.push_back(root);
         path.normals_C.push_back(normal);
       }
+      if (const int k = repair_fin_parallel_normals(path, reg.normal_C); k > 0)
+        spdlog::debug("detect: region {}: {} root normal(s) lay on a face parallel to the fin", r, k);
       // A fin stands out of its wall, so its normal is square to the wall normals along the
       // root: where the wall curves (the normals span a plane: a hole, a rounded corner) it is
       // that plane's normal, else the fitted fin normal less its part along the wall normal. A

@@ -626,3 +626,22 @@ TEST(FlashDetection, PathsThatContinueEachOtherBecomeOne) {
   EXPECT_NEAR(lo, 0.0, 1e-9);
   EXPECT_NEAR(hi, 0.08, 1e-9);
 }
+
+TEST(FlashDetection, RootNormalsOnAFaceParallelToTheFinTakeTheWallsNormal) {
+  // Round flange 6115: a rim's root just under the top face; halfway along, the nearest CAD
+  // triangle was the top face (+z, the fin's own normal) and the wrist had to swing 1.8 rad.
+  FlashPath p = line_path(0.0, 0.03, 1e-3);
+  for (std::size_t i = 12; i < p.normals_C.size(); ++i) p.normals_C[i] = Vec3::UnitZ();
+  p.normals_C[3] = Vec3(0.0, -std::cos(0.9), std::sin(0.9)).normalized();  // sloped 52°: a wall
+  const Vec3 sloped = p.normals_C[3];
+  EXPECT_EQ(repair_fin_parallel_normals(p, Vec3::UnitZ()), static_cast<int>(p.normals_C.size()) - 12);
+  for (std::size_t i = 0; i < p.normals_C.size(); ++i) {
+    if (i == 3) EXPECT_EQ(p.normals_C[i], sloped);
+    else EXPECT_NEAR(p.normals_C[i].y(), -1.0, 1e-12) << i;
+  }
+  // Nothing to take from: every normal parallel to the fin is left as it is.
+  FlashPath flat = line_path(0.0, 0.01, 1e-3);
+  for (auto& n : flat.normals_C) n = Vec3::UnitZ();
+  EXPECT_EQ(repair_fin_parallel_normals(flat, Vec3::UnitZ()), 0);
+  EXPECT_EQ(flat.normals_C.back(), Vec3::UnitZ());
+}

@@ -126,6 +126,12 @@ struct Polyline {
 };
 std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double gap);
 
+/// Root normals within 30° of `fin_normal_C` (a face parallel to the fin: the root runs along
+/// an edge) take the normal of the nearest point along the path whose normal is a wall's
+/// (cyclic for closed paths). Returns how many were replaced; none when no point or every
+/// point has a wall's normal.
+int repair_fin_parallel_normals(FlashPath& path, const Vec3& fin_normal_C);
+
 /// Joins open paths that continue each other (one root split between regions): ends within
 /// `reach` [m], both leaving within 30° of one line (directions from the points within `span`
 /// [m] of each end), fin planes within 20°; the later path's points behind the junction are
