@@ -914,6 +914,11 @@ std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double ga
   return out;
 }
 
+FinPlane fin_plane(const std::vector<Vec3>& pts, double band) {
+  const Plane pl = fit_fin_plane(pts, band);
+  return {pl.n, pl.c};
+}
+
 DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, const Pose& X_CM,
                              const DetectionParams& params) {
   const auto t0 = Clock::now();

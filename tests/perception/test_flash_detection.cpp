@@ -2,6 +2,8 @@
 // from above would see them (upward and sideways faces), with Gaussian noise along the normal.
 #include <gtest/gtest.h>
 
+#include <Eigen/Eigenvalues>
+
 #include <algorithm>
 #include <cmath>
 #include <utility>
@@ -644,4 +646,34 @@ TEST(FlashDetection, RootNormalsOnAFaceParallelToTheFinTakeTheWallsNormal) {
   for (auto& n : flat.normals_C) n = Vec3::UnitZ();
   EXPECT_EQ(repair_fin_parallel_normals(flat, Vec3::UnitZ()), 0);
   EXPECT_EQ(flat.normals_C.back(), Vec3::UnitZ());
+}
+
+TEST(FlashDetection, FinPlaneIsNotTiltedByAFixtureClusteredWithTheFin) {
+  // Round flange 6115: a clamp block's top (not in the CAD, 10–17 mm above the fin) clustered
+  // with a rim's fin and tilted the least-squares plane by 15°; the root then came out 7 mm
+  // above the parting line. Here an arc of fin 0.8 mm thick (z 14.6–15.4 mm) and a block top
+  // beside one end, 10 mm above it, with a fifth of the points.
+  std::vector<Vec3> pts;
+  Rng rng(5);
+  for (int i = 0; i < 4000; ++i) {
+    const double a = rng.uniform(-1.2, 1.2), r = rng.uniform(0.116, 0.124);
+    pts.emplace_back(r * std::cos(a), r * std::sin(a), rng.uniform(0.0146, 0.0154));
+  }
+  for (int i = 0; i < 1000; ++i)
+    pts.emplace_back(rng.uniform(0.125, 0.145), rng.uniform(0.05, 0.07), 0.025);
+  const FinPlane plane = fin_plane(pts, 1.5e-3);
+  EXPECT_GT(std::abs(plane.n.z()), std::cos(0.2 * M_PI / 180));
+  EXPECT_NEAR(plane.c.z(), 0.015, 0.2e-3);
+  // The least-squares plane of the same points is tilted by more than a degree.
+  Vec3 c = Vec3::Zero();
+  for (const auto& p : pts) c += p;
+  c /= static_cast<double>(pts.size());
+  Mat3 M = Mat3::Zero();
+  for (const auto& p : pts) M += (p - c) * (p - c).transpose();
+  const Eigen::SelfAdjointEigenSolver<Mat3> es(M);
+  EXPECT_LT(std::abs(es.eigenvectors().col(0).z()), std::cos(M_PI / 180));
+  // A clean fin: the same plane as least squares.
+  pts.resize(4000);
+  const FinPlane clean = fin_plane(pts, 1.5e-3);
+  EXPECT_GT(std::abs(clean.n.z()), std::cos(0.2 * M_PI / 180));
 }

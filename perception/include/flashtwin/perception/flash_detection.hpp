@@ -126,6 +126,14 @@ struct Polyline {
 };
 std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double gap);
 
+/// The plane of a fin region's points [m]: the plane through three of them that most lie within
+/// `band` of (RANSAC from a fixed seed), refitted by least squares to those; the plain
+/// least-squares plane when that holds more. Unit normal (either sign) and a point on it.
+struct FinPlane {
+  Vec3 n = Vec3::UnitZ(), c = Vec3::Zero();
+};
+FinPlane fin_plane(const std::vector<Vec3>& pts, double band);
+
 /// Root normals within 30° of `fin_normal_C` (a face parallel to the fin: the root runs along
 /// an edge) take the normal of the nearest point along the path whose normal is a wall's
 /// (cyclic for closed paths). Returns how many were replaced; none when no point or every
