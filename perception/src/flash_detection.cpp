@@ -91,22 +91,36 @@ Plane fit_plane(const std::vector<Vec3>& pts) {
 }
 
 // The plane of a fin region: the plane through three of its points that most points lie
-// within `band` of (RANSAC, 256 draws from a fixed seed over at most 4000 of the points), refitted
-// by least squares to those within the band. A region whose points reach a fixture standing
-// beside its fin (round_flange 6115: a clamp block's face and top, up to 17 mm above the fin)
-// tilted the plain fit by 15°; the mid-plane then climbed 9 mm off the root along a 230 mm rim.
-// The plain fit stands when the consensus plane holds fewer points than it does.
-Plane fit_fin_plane(const std::vector<Vec3>& pts, double band) {
+// within `band` of, among those holding at least half the points that touch the casting
+// (`touch`: a fin grows out of the casting along its root, a fixture's top beside it does
+// not; a plane through a fixture's top and a few root points does not count), by RANSAC
+// (256 draws from a fixed seed over about 4000 of the points), refitted by least squares to
+// those within the band. A region whose points reach a fixture standing beside its fin
+// (round_flange 6115: a clamp block's face and top, up to 17 mm above the fin) tilted the plain
+// fit by 15°; the mid-plane then climbed 9 mm off the root along a 230 mm rim. The plain fit
+// stands when it also holds half the touching points and as many points (`consensus` false).
+Plane fit_fin_plane(const std::vector<Vec3>& pts, const std::vector<bool>& touch, double band,
+                    bool* consensus) {
+  FT_ASSERT(touch.size() == pts.size());
+  if (consensus) *consensus = false;
   const Plane plain = fit_plane(pts);
   if (pts.size() < 10) return plain;
-  const auto count = [&](const Plane& pl) {
-    std::size_t k = 0;
-    for (const auto& p : pts) k += std::abs(pl.dist(p)) <= band;
+  const auto count = [&](const Plane& pl, std::size_t* touching) {
+    std::size_t k = 0, t = 0;
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      const bool in = std::abs(pl.dist(pts[i])) <= band;
+      k += in;
+      t += in && touch[i];
+    }
+    if (touching) *touching = t;
     return k;
   };
-  std::vector<std::size_t> sub;
-  const std::size_t stride = std::max<std::size_t>(1, pts.size() / 4000);
+  std::vector<std::size_t> sub, sub_touch;
+  const std::size_t stride = std::max<std::size_t>(1, (pts.size() + 3999) / 4000);
   for (std::size_t i = 0; i < pts.size(); i += stride) sub.push_back(i);
+  for (std::size_t i = 0; i < pts.size(); ++i)
+    if (touch[i]) sub_touch.push_back(i);
+  if (sub_touch.size() < 3) return plain;  // (all the touching points: a few thousand at most)
   Rng rng(0x5eed);
   Plane best;
   std::size_t best_k = 0;
@@ -118,12 +132,13 @@ Plane fit_fin_plane(const std::vector<Vec3>& pts, double band) {
     Plane cand;
     cand.c = a;
     cand.n = n.normalized();
-    std::size_t k = 0;
+    std::size_t k = 0, t = 0;
     for (std::size_t i : sub) k += std::abs(cand.dist(pts[i])) <= band;
-    if (k > best_k) {
-      best_k = k;
-      best = cand;
-    }
+    if (k <= best_k) continue;
+    for (std::size_t i : sub_touch) t += std::abs(cand.dist(pts[i])) <= band;
+    if (2 * t < sub_touch.size()) continue;
+    best_k = k;
+    best = cand;
   }
   if (best_k == 0) return plain;
   std::vector<Vec3> in;
@@ -131,7 +146,13 @@ Plane fit_fin_plane(const std::vector<Vec3>& pts, double band) {
     if (std::abs(best.dist(p)) <= band) in.push_back(p);
   if (in.size() < 3) return plain;
   const Plane refit = fit_plane(in);
-  return count(refit) > count(plain) ? refit : plain;
+  std::size_t refit_touch = 0, plain_touch = 0;
+  const std::size_t refit_k = count(refit, &refit_touch), plain_k = count(plain, &plain_touch);
+  if (2 * refit_touch < sub_touch.size()) return plain;
+  // The plain fit stands when it holds the root too and at least as many points.
+  if (2 * plain_touch >= sub_touch.size() && plain_k >= refit_k) return plain;
+  if (consensus) *consensus = true;
+  return refit;
 }
 
 // Support planes (table, fixture faces): RANSAC planes through many candidates with the whole
@@ -378,7 +399,8 @@ Vec3 path_end_direction(const FlashPath& p, bool front, double span) {
 // its end into the next one's fin still standing at full height (housing 7015: 95 N at the
 // end, the arm pushed 0.13 mm into the wall). Open paths whose ends lie within `reach` of each
 // other, both leaving within 30° of the same line and with fin planes within 20°, become one:
-// the second's points that lie behind the junction (overlapping ends) are dropped. Returns how
+// the second's leading points up to the first one past the junction (overlapping ends) are
+// dropped, and the second's end must lie within span/2 of the first's end line. Returns how
 // many paths were joined into others.
 int join_continuing_paths(std::vector<FlashPath>& paths, double reach, double span) {
   const double cos30 = std::cos(M_PI / 6), cos20 = std::cos(M_PI / 9);
@@ -400,6 +422,10 @@ int join_continuing_paths(std::vector<FlashPath>& paths, double reach, double sp
           const Vec3 ta = path_end_direction(a, a_front, span);   // leaving a
           const Vec3 tb = path_end_direction(b, !b_back, span);   // leaving b, towards a
           if (ta.isZero() || tb.isZero() || ta.dot(-tb) < cos30) continue;
+          // On one line: b's end no more than span/2 to the side of a's end line (two parallel
+          // fins' ends can lie within reach).
+          const Vec3 d = eb - ea;
+          if ((d - d.dot(ta) * ta).norm() > 0.5 * span) continue;
           FlashPath m = a;
           if (a_front) {
             std::reverse(m.points_C.begin(), m.points_C.end());
@@ -410,12 +436,12 @@ int join_continuing_paths(std::vector<FlashPath>& paths, double reach, double sp
             std::reverse(bp.begin(), bp.end());
             std::reverse(bn.begin(), bn.end());
           }
+          // b's leading points up to the first one past the junction overlap a's end.
           const Vec3 junction = m.points_C.back();
-          for (std::size_t k = 0; k < bp.size(); ++k) {
-            if ((bp[k] - junction).dot(ta) <= 0.25 * span) continue;  // behind the junction
-            m.points_C.push_back(bp[k]);
-            m.normals_C.push_back(bn[k]);
-          }
+          std::size_t k0 = 0;
+          while (k0 < bp.size() && (bp[k0] - junction).dot(ta) <= 0.25 * span) ++k0;
+          m.points_C.insert(m.points_C.end(), bp.begin() + static_cast<std::ptrdiff_t>(k0), bp.end());
+          m.normals_C.insert(m.normals_C.end(), bn.begin() + static_cast<std::ptrdiff_t>(k0), bn.end());
           m.fin_height = std::max(a.fin_height, b.fin_height);
           orient_path(m);
           a = std::move(m);
@@ -914,9 +940,12 @@ std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double ga
   return out;
 }
 
-FinPlane fin_plane(const std::vector<Vec3>& pts, double band) {
-  const Plane pl = fit_fin_plane(pts, band);
-  return {pl.n, pl.c};
+FinPlane fin_plane(const std::vector<Vec3>& pts, const std::vector<bool>& touch, double band) {
+  FinPlane out;
+  const Plane pl = fit_fin_plane(pts, touch, band, &out.consensus);
+  out.n = pl.n;
+  out.c = pl.c;
+  return out;
 }
 
 DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, const Pose& X_CM,
@@ -1254,18 +1283,23 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       hmax = std::max(hmax, height[i]);
     }
     // Fins are at most 1.5 mm thick: a fin's points lie within 1.5 mm of its plane.
-    const Plane fin = fit_fin_plane(pts, 1.5e-3);
-    // Points more than 3 mm off the fin's plane are not the fin (a fixture's face beside it:
-    // its top, taken for the fin's outer edge, put 6115's mid-plane 7 mm above the root).
-    {
+    std::vector<bool> touch(cl.size());
+    for (std::size_t i = 0; i < cl.size(); ++i) touch[i] = dist[cand[live[cl[i]]]] < inner_limit;
+    bool consensus = false;
+    const Plane fin = fit_fin_plane(pts, touch, 1.5e-3, &consensus);
+    // Where the consensus plane won, the points more than 3 mm off it are not the fin (a
+    // fixture's top, taken for the fin's outer edge, put 6115's mid-plane 7 mm above the root).
+    if (consensus) {
       std::size_t k = 0;
       hmax = 0;
+      touching = 0;
       for (std::size_t i = 0; i < cl.size(); ++i) {
         if (std::abs(fin.dist(pts[i])) > 3e-3) continue;
         cl[k] = cl[i];
         pts[k] = pts[i];
         height[k] = height[i];
         hmax = std::max(hmax, height[k]);
+        touching += touch[i];
         ++k;
       }
       if (k < cl.size())

@@ -602,14 +602,18 @@ TEST(FlashDetection, PathsThatContinueEachOtherBecomeOne) {
   for (auto& q : parallel.points_C) q.y() = 0.005;
   FlashPath corner = line_path(0.0, 0.02, 4e-4);
   for (auto& q : corner.points_C) q = Vec3(0.0806, q.x(), q.z());
+  // A parallel fin 1 mm to the side whose end overlaps the first's end (within reach).
+  FlashPath beside = line_path(0.0495, 0.065, 4e-4);
+  for (auto& q : beside.points_C) q.y() = -0.001;
   FlashPath loop = line_path(0.0494, 0.052, 4e-4);  // its ends by the junction, but closed
   loop.closed = true;
   for (auto& q : loop.points_C) q.y() = 0.001;
   paths.push_back(parallel);
   paths.push_back(corner);
   paths.push_back(loop);
+  paths.push_back(beside);
   EXPECT_EQ(join_continuing_paths(paths, 2e-3, 1.6e-3), 1);
-  ASSERT_EQ(paths.size(), 4u);
+  ASSERT_EQ(paths.size(), 5u);
   const FlashPath& m = paths[0];
   EXPECT_FALSE(m.closed);
   EXPECT_EQ(m.fin_height, 0.004);
@@ -641,6 +645,17 @@ TEST(FlashDetection, RootNormalsOnAFaceParallelToTheFinTakeTheWallsNormal) {
     if (i == 3) EXPECT_EQ(p.normals_C[i], sloped);
     else EXPECT_NEAR(p.normals_C[i].y(), -1.0, 1e-12) << i;
   }
+  // The nearest wall's normal, around the loop's seam too: walls -y at 0..4, +x at 10..14,
+  // parallel elsewhere (20 points, closed).
+  FlashPath ring = line_path(0.0, 0.019, 1e-3);
+  ring.closed = true;
+  for (std::size_t i = 0; i < ring.normals_C.size(); ++i)
+    ring.normals_C[i] = i < 5 ? Vec3(0, -1, 0) : (i >= 10 && i < 15 ? Vec3(1, 0, 0) : Vec3(0, 0, 1));
+  EXPECT_EQ(repair_fin_parallel_normals(ring, Vec3::UnitZ()), 10);
+  EXPECT_EQ(ring.normals_C[6], Vec3(0, -1, 0));   // 2 from the -y wall, 4 from the +x wall
+  EXPECT_EQ(ring.normals_C[8], Vec3(1, 0, 0));    // 4 from -y, 2 from +x
+  EXPECT_EQ(ring.normals_C[16], Vec3(1, 0, 0));   // 2 from +x, 4 across the seam from -y
+  EXPECT_EQ(ring.normals_C[18], Vec3(0, -1, 0));  // 4 from +x, 2 across the seam from -y
   // Nothing to take from: every normal parallel to the fin is left as it is.
   FlashPath flat = line_path(0.0, 0.01, 1e-3);
   for (auto& n : flat.normals_C) n = Vec3::UnitZ();
@@ -661,9 +676,21 @@ TEST(FlashDetection, FinPlaneIsNotTiltedByAFixtureClusteredWithTheFin) {
   }
   for (int i = 0; i < 1000; ++i)
     pts.emplace_back(rng.uniform(0.125, 0.145), rng.uniform(0.05, 0.07), 0.025);
-  const FinPlane plane = fin_plane(pts, 1.5e-3);
+  // The fin's points next to the wall touch the casting; the block's do not.
+  std::vector<bool> touch(pts.size(), false);
+  for (std::size_t i = 0; i < 4000; ++i) touch[i] = pts[i].head<2>().norm() < 0.117;
+  const FinPlane plane = fin_plane(pts, touch, 1.5e-3);
+  EXPECT_TRUE(plane.consensus);
   EXPECT_GT(std::abs(plane.n.z()), std::cos(0.2 * M_PI / 180));
   EXPECT_NEAR(plane.c.z(), 0.015, 0.2e-3);
+  // A block with more points than the fin: still the fin's plane, the only one touching.
+  std::vector<Vec3> more = pts;
+  for (int i = 0; i < 6000; ++i) more.emplace_back(rng.uniform(0.125, 0.145), rng.uniform(0.05, 0.07), 0.025);
+  std::vector<bool> more_touch = touch;
+  more_touch.resize(more.size(), false);
+  const FinPlane crowded = fin_plane(more, more_touch, 1.5e-3);
+  EXPECT_GT(std::abs(crowded.n.z()), std::cos(0.2 * M_PI / 180));
+  EXPECT_NEAR(crowded.c.z(), 0.015, 0.2e-3);
   // The least-squares plane of the same points is tilted by more than a degree.
   Vec3 c = Vec3::Zero();
   for (const auto& p : pts) c += p;
@@ -674,6 +701,8 @@ TEST(FlashDetection, FinPlaneIsNotTiltedByAFixtureClusteredWithTheFin) {
   EXPECT_LT(std::abs(es.eigenvectors().col(0).z()), std::cos(M_PI / 180));
   // A clean fin: the same plane as least squares.
   pts.resize(4000);
-  const FinPlane clean = fin_plane(pts, 1.5e-3);
+  touch.resize(4000);
+  const FinPlane clean = fin_plane(pts, touch, 1.5e-3);
+  EXPECT_FALSE(clean.consensus);
   EXPECT_GT(std::abs(clean.n.z()), std::cos(0.2 * M_PI / 180));
 }

@@ -127,12 +127,15 @@ struct Polyline {
 std::vector<Polyline> order_polylines(const std::vector<Vec3>& points, double gap);
 
 /// The plane of a fin region's points [m]: the plane through three of them that most lie within
-/// `band` of (RANSAC from a fixed seed), refitted by least squares to those; the plain
-/// least-squares plane when that holds more. Unit normal (either sign) and a point on it.
+/// `band` of, among those holding at least half the points that touch the casting (`touch`,
+/// one flag per point), by RANSAC from a fixed seed, refitted by least squares to those; the plain
+/// least-squares plane when that holds as many (`consensus` false). Unit normal (either sign)
+/// and a point on it.
 struct FinPlane {
   Vec3 n = Vec3::UnitZ(), c = Vec3::Zero();
+  bool consensus = false;
 };
-FinPlane fin_plane(const std::vector<Vec3>& pts, double band);
+FinPlane fin_plane(const std::vector<Vec3>& pts, const std::vector<bool>& touch, double band);
 
 /// Root normals within 30° of `fin_normal_C` (a face parallel to the fin: the root runs along
 /// an edge) take the normal of the nearest point along the path whose normal is a wall's
@@ -142,9 +145,10 @@ int repair_fin_parallel_normals(FlashPath& path, const Vec3& fin_normal_C);
 
 /// Joins open paths that continue each other (one root split between regions): ends within
 /// `reach` [m], both leaving within 30° of one line (directions from the points within `span`
-/// [m] of each end), fin planes within 20°; the later path's points behind the junction are
-/// dropped and the joined path is oriented as detect_flash orients paths. Returns how many
-/// paths were joined into others (removed from `paths`).
+/// [m] of each end), the second's end within span/2 of the first's end line, fin planes within
+/// 20°; the later path's leading points up to the first past the junction are dropped and the
+/// joined path is oriented as detect_flash orients paths. Returns how many paths were joined
+/// into others (removed from `paths`).
 int join_continuing_paths(std::vector<FlashPath>& paths, double reach, double span);
 
 /// 2-D alpha shape (rolling circle of radius alpha): flags of the points a circle of that
