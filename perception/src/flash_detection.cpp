@@ -1287,14 +1287,17 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
     for (std::size_t i = 0; i < cl.size(); ++i) touch[i] = dist[cand[live[cl[i]]]] < inner_limit;
     bool consensus = false;
     const Plane fin = fit_fin_plane(pts, touch, 1.5e-3, &consensus);
-    // Where the consensus plane won, the points more than 3 mm off it are not the fin (a
-    // fixture's top, taken for the fin's outer edge, put 6115's mid-plane 7 mm above the root).
+    // Where the consensus plane won, the points off it by more than the band and the scanner's
+    // noise are not the fin: a fixture's top (taken for the fin's outer edge, it put 6115's
+    // mid-plane 7 mm above the root) or the face of a clamp beside the fin's tip, 2 mm under
+    // its plane (taken for the fin's lower edge, it put default 5013's 1 mm below).
     if (consensus) {
+      const double off = 1.5e-3 + 3 * res.noise_sigma;
       std::size_t k = 0;
       hmax = 0;
       touching = 0;
       for (std::size_t i = 0; i < cl.size(); ++i) {
-        if (std::abs(fin.dist(pts[i])) > 3e-3) continue;
+        if (std::abs(fin.dist(pts[i])) > off) continue;
         cl[k] = cl[i];
         pts[k] = pts[i];
         height[k] = height[i];
