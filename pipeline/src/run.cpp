@@ -286,11 +286,13 @@ std::vector<planner::GrindResult> plan_in_pieces(const RobotModel& robot, const 
   constexpr int kMinPiece = 20, kOverlap = 8;
   if (whole.ok() || whole.status != planner::GrindStatus::kJointLimit || i < 0 || i >= n)
     return {whole};
+  const int end = i - kOverlap / 2, next = end - kOverlap;
   // The wrist cannot reach the path's first points (its first pose, even with the whole path
-  // leaning, or a later pass returning there, is past a joint's range): the path starts farther
-  // in, 4 points at a time up to 64, and the root before it is left (a real cell would turn the
-  // part; the residual shows it).
-  if (i < kMinPiece && may_trim && !gp.closed) {
+  // leaning, or a later pass returning there, is past a joint's range), or they are too few to
+  // make a piece of their own: the path starts farther in, 4 points at a time up to 64, and the
+  // root before it is left (a real cell would turn the part; the residual shows it). (Cover
+  // seed 11 failed at point 21: too late to trim and too early to split, the whole path stood.)
+  if (end < kMinPiece && may_trim && !gp.closed) {
     for (int s = 4; s <= 64 && n - s >= kMinPiece; s += 4) {
       auto pieces = plan_in_pieces(robot, X_BC, sub_path(gp, static_cast<std::size_t>(s), static_cast<std::size_t>(n - s)), P,
                                    max_pieces, false);
@@ -307,7 +309,6 @@ std::vector<planner::GrindResult> plan_in_pieces(const RobotModel& robot, const 
     if (pieces.front().ok()) return pieces;
     return {whole};
   }
-  const int end = i - kOverlap / 2, next = end - kOverlap;
   if (end < kMinPiece || n - next < kMinPiece) return {whole};
   planner::GrindResult head = planner::plan_grind(robot, X_BC, sub_path(gp, 0, static_cast<std::size_t>(end)), P);
   if (!head.ok()) return {whole};
