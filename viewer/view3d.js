@@ -7,7 +7,8 @@
 // draws X times the default number of points (0.25, 0.5, 1, 2, 4, 8), #go=residual|gouges
 // presses that "worst" button, #pixels records the share of drawn pixels (drawn_fraction),
 // #log also logs the status to the console. #ft-status (hidden) holds a JSON summary: ready,
-// layers with their item counts, errors, fps.
+// ready_ms, layers with their item counts, errors, fps, points_drawn, drawn_fraction (#pixels),
+// measure (after a click or #go).
 (function () {
   'use strict';
   const status = { ready: false, errors: [], layers: {}, fps: null };
