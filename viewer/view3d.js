@@ -221,7 +221,7 @@
     const col = new Float32Array(xyz.length);
     for (let i = 0; i < scanLabels.length; ++i) col.set(labelColors[Math.min(2, scanLabels[i])], 3 * i);
     const pts = pointsObject(xyz, col, 2);
-    pointLayers.push({ object: pts, stored: scanLabels.length, base: 20000 });
+    pointLayers.push({ object: pts, stored: scanLabels.length, base: 12000 });
     addLayer('scan', 'Scan by label: body, flash, ignored (' + scanLabels.length + ' of ' + data.scan.total +
       ' points)', pts, scanLabels.length,
       'linear-gradient(90deg,rgb(62,124,203) 33%,rgb(255,89,0) 33% 66%,rgb(199,199,199) 66%)', true);
@@ -282,7 +282,7 @@
     const col = new Float32Array(xyz.length);
     for (let i = 0; i < val.length; ++i) col.set(fn(val[i] / max), 3 * i);
     const pts = pointsObject(xyz, col, size);
-    pointLayers.push({ object: pts, stored: val.length, base: 8000 });
+    pointLayers.push({ object: pts, stored: val.length, base: 5000 });
     maps[key] = { values: val, worst: d.worst, object: pts };
     addLayer(key, name + ' (' + d.total + ' voxels' + (d.worst ? ', max ' + d.worst.value.toFixed(2) + ' mm' : '') + ')',
       pts, val.length, css(fn(0.7)), true);
