@@ -383,7 +383,7 @@ void snap_to_circle(FlashPath& path, const Vec3& w, const MeshBvh& cad_C, double
 
 // The direction an open path leaves at one end (front: towards its first point), from its
 // points within `span` of that end; zero when they do not reach that far.
-Vec3 path_end_direction(const FlashPath& p, bool front, double span) {
+static Vec3 path_end_direction(const FlashPath& p, bool front, double span) {
   const auto& q = p.points_C;
   const Vec3& end = front ? q.front() : q.back();
   for (std::size_t k = 1; k < q.size(); ++k) {
