@@ -1566,7 +1566,11 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       // A fin stands out of its wall, so its normal is square to the wall normals along the
       // root: where the wall curves (the normals span a plane: a hole, a rounded corner) it is
       // that plane's normal, else the fitted fin normal less its part along the wall normal. A
-      // plane fitted to a few points of a partly seen ring can be tens of degrees off.
+      // plane fitted to a few points of a partly seen ring can be tens of degrees off. Not on a
+      // sloped wall (a dome, a cone: the normals lie on a cone round the fin normal, the fin
+      // leaves the wall at its slope): where the fitted plane is more than 10° from square to
+      // the mean wall normal it stands (cover 9015: the dome's parting plane, fitted within
+      // 0.03°, had been turned 57° off, and the burr's shank with it).
       {
         Mat3 M = Mat3::Zero();
         for (const auto& nrm : path.normals_C) M += nrm * nrm.transpose();
@@ -1579,7 +1583,8 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
         const Vec3 e0 = es.eigenvectors().col(0);
         const bool curved = es.eigenvalues()(1) > 0.05 && es.eigenvalues()(0) < 0.02 &&
                             std::abs(e0.dot(reg.normal_C)) > std::cos(M_PI / 4);
-        Vec3 fn = curved ? e0 : along_wall;
+        const bool sloped = std::abs(reg.normal_C.dot(es.eigenvectors().col(2))) > std::sin(M_PI / 18);
+        Vec3 fn = curved ? e0 : (sloped ? reg.normal_C : along_wall);
         if (fn.norm() > 1e-6) {
           fn.normalize();
           if (fn.dot(reg.normal_C) < 0) fn = -fn;

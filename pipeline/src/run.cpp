@@ -286,6 +286,7 @@ std::vector<planner::GrindResult> plan_in_pieces(const RobotModel& robot, const 
   constexpr int kMinPiece = 20, kOverlap = 8;
   if (whole.ok() || whole.status != planner::GrindStatus::kJointLimit || i < 0 || i >= n)
     return {whole};
+  spdlog::debug("path of {} points not planned in one go: {}", n, whole.message);
   const int end = i - kOverlap / 2, next = end - kOverlap;
   // The wrist cannot reach the path's first points (its first pose, even with the whole path
   // leaning, or a later pass returning there, is past a joint's range), or they are too few to

@@ -373,7 +373,8 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     g.stock_allowance = pl2.get_double("stock_allowance", 0.0, 0.005, g.stock_allowance);
     g.manipulability_threshold =
         pl2.get_double("manipulability_threshold", 0, 1, g.manipulability_threshold);
-    g.max_extra_tilt = pl2.get_double("max_extra_tilt", 0, 1.2, g.max_extra_tilt);
+    g.max_extra_tilt = pl2.get_double("max_extra_tilt", 0, M_PI / 4, g.max_extra_tilt);
+    g.max_extra_lead = pl2.get_double("max_extra_lead", 0, M_PI / 2, g.max_extra_lead);
   }
 
   if (root.has("tool")) {

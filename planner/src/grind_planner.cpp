@@ -85,9 +85,15 @@ struct Geo {
   SampleKind kind = SampleKind::kCut;
   int pass = 0;
   int path_index = 0;
+  double dir = 1;  // +1 on a pass along the path, −1 on one back along it (t reversed)
+  double lead_cap = 0;  // largest extra lead allowed here [rad] (lead_cap_at)
 };
 
-// Re-orientation of one sample on top of the nominal lead/tilt and the base spin [rad].
+// Re-orientation of one sample on top of the nominal lead/tilt and the base spin [rad]. Its
+// lead turns the shank toward the path's own direction (points_C order), whichever way the
+// pass travels: a re-orientation is a place on the casting where the wrist needs the axis
+// turned, so it must stay put when the next pass comes back along the path (as a lead toward
+// the travel it would flip at every turn-round; the nominal P.lead does follow the travel).
 struct Dev {
   double lead = 0, tilt = 0, spin = 0;
 };
@@ -185,7 +191,7 @@ struct Context {
     // turned into the wall's tangent plane (the shank leans with the wall).
     const double cb = std::cos(g.slope), sb = std::sin(g.slope);
     const Vec3 n_wall = cb * g.n + sb * f, f_wall = cb * f - sb * g.n;
-    Pose X = grind_tool_pose(g.p, n_wall, g.t, f_wall, x_ref, g.extra, lead + d.lead, tilt + d.tilt,
+    Pose X = grind_tool_pose(g.p, n_wall, g.t, f_wall, x_ref, g.extra, lead + g.dir * d.lead, tilt + d.tilt,
                              spin0 + d.spin, radius, length, tip_depth, off);
     X.translation() += g.lift * f;
     return X;
@@ -340,8 +346,21 @@ std::vector<Candidate> candidates(const GrindParams& P) {
                                  {h, h}, {-h, h}, {-h, -h}, {h, -h}};
       for (const auto& d : dirs) c.push_back({{m * d[0], m * d[1], 0}, k});
     }
+    // Leads alone beyond that, in the same steps, up to max_extra_lead.
+    const double step = P.max_extra_tilt / P.reorient_steps;
+    for (int k = P.reorient_steps + 1; k * step <= P.max_extra_lead + 1e-12; ++k) {
+      c.push_back({{k * step, 0, 0}, k});
+      c.push_back({{-k * step, 0, 0}, k});
+    }
   }
   return c;
+}
+
+// Whether a sample's total re-orientation stays within the allowances: its lead within the
+// sample's cap (Geo::lead_cap), its tilt within max_extra_tilt. (Fixes of neighbouring ranges
+// add up where their fades overlap.)
+bool lean_allowed(const GrindParams& P, const Geo& g, const Dev& d) {
+  return std::abs(d.lead) <= g.lead_cap + 1e-12 && std::abs(d.tilt) <= P.max_extra_tilt + 1e-12;
 }
 
 // A re-orientation tried on one bad range: the candidate faded in over `blend` before the range
@@ -379,7 +398,7 @@ Fix try_fix(const Context& C, const Seed& seed, const SeedOutcome& out, std::siz
       trial[i].tilt = out.dev[i].tilt + wi * cand.d.tilt;
       trial[i].spin = out.dev[i].spin + wi * cand.d.spin;
       // Overlapping fixes add up: keep the total lean within the allowance.
-      if (std::hypot(trial[i].lead, trial[i].tilt) > C.P.max_extra_tilt + 1e-12) return fix;
+      if (!lean_allowed(C.P, C.geo[i], trial[i])) return fix;
     }
     const Vector6 ref = wa == 0 ? seed.q0 : out.nodes[wa - 1].q;
     const long bad = C.track(trial, seed.spin0, seed.branch, ref, wa, wb, fix.nodes, true);
@@ -652,6 +671,26 @@ std::vector<double> pass_offsets(const GrindParams& P, double height) {
   return e;
 }
 
+// The largest extra lead at path sample k [rad]. A lead swings the burr's ends along the path
+// by a·sin(lead) (a: the farther end's axial distance from the root); where the wall is concave
+// along the path (curving toward its normal, as in a hole) it comes closer there by
+// (a sin lead)² κ / 2, held to 10 µm. Never below max_extra_tilt (the lean every path had before
+// leads alone were allowed further).
+double lead_cap_at(const GrindParams& P, const std::vector<PathSample>& ps, std::size_t k, double a,
+                   bool closed) {
+  const std::size_t n = ps.size();
+  double cap = std::max(P.max_extra_lead, P.max_extra_tilt);
+  if (n < 3 || a <= 0) return cap;
+  const std::size_t i0 = k > 0 ? k - 1 : (closed ? n - 1 : 0);
+  const std::size_t i1 = k + 1 < n ? k + 1 : (closed ? 0 : n - 1);
+  const double ds = (ps[i1].p - ps[i0].p).norm();
+  if (i0 == i1 || ds < 1e-9) return cap;
+  const double kappa_n = (ps[i1].t - ps[i0].t).dot(ps[k].n) / ds;  // > 0: concave
+  constexpr double kTol = 10e-6;
+  if (kappa_n > 1e-9) cap = std::min(cap, std::asin(std::min(1.0, std::sqrt(2 * kTol / kappa_n) / a)));
+  return std::max(cap, P.max_extra_tilt);
+}
+
 }  // namespace
 
 Pose grind_tool_pose(const Vec3& p, const Vec3& n, const Vec3& t, const Vec3& f, const Vec3& x_ref,
@@ -713,6 +752,8 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
               P.manipulability_threshold);
   check_param(P.max_extra_tilt >= 0 && P.max_extra_tilt <= M_PI / 4, "max_extra_tilt",
               "0..pi/4 [rad]", P.max_extra_tilt);
+  check_param(P.max_extra_lead >= 0 && P.max_extra_lead <= M_PI / 2, "max_extra_lead",
+              "0..pi/2 [rad]", P.max_extra_lead);
   check_param(P.reorient_steps >= 1, "reorient_steps", ">= 1", P.reorient_steps);
   check_param(P.blend_length > 0, "blend_length", "> 0 [m]", P.blend_length);
   check_param(P.spin_candidates >= 1 && P.spin_candidates <= 64, "spin_candidates", "1..64",
@@ -941,6 +982,9 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     g.p = q.p;
     g.n = q.n;
     g.t = reverse ? Vec3(-q.t) : q.t;
+    g.dir = reverse ? -1 : 1;
+    g.lead_cap = lead_cap_at(P, ps, reverse ? ps.size() - 1 - k : k,
+                             std::max(tip_depth, length - tip_depth), path.closed);
     g.slope = slope[static_cast<std::size_t>(q.path_index)];
     g.extra = res.pass_offsets[static_cast<std::size_t>(pass)];
     g.kind = SampleKind::kCut;
@@ -1077,12 +1121,18 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   };
   seeds_leaning(Dev{});
   // No allowed solution at the nominal first pose under any spin (a wrist bent past its range
-  // to hold the burr upright close to the base): the whole path leans, by the re-orientation
-  // candidates' leans in their order, the smallest that gives seeds.
-  for (std::size_t c = 0; c < cands.size() && seeds.empty(); ++c) {
-    if (cands[c].level == 0) continue;
-    seeds_leaning(cands[c].d);  // the samples' extra lead and tilt show the lean
-  }
+  // to hold the burr upright close to the base): the whole path leans, the smallest lead alone
+  // that gives seeds, else the smallest lean with tilt (a tilt of the whole path would leave a
+  // wedge of flash along all of it: cover seed 9020, 0.18 rad, 1.3 mm).
+  const auto lean_allowed_everywhere = [&](const Dev& d) {
+    return std::all_of(C.geo.begin(), C.geo.end(),
+                       [&](const Geo& g) { return lean_allowed(P, g, d); });
+  };
+  for (const bool with_tilt : {false, true})
+    for (std::size_t c = 0; c < cands.size() && seeds.empty(); ++c)
+      if (cands[c].level > 0 && (cands[c].d.tilt != 0) == with_tilt &&
+          lean_allowed_everywhere(cands[c].d))
+        seeds_leaning(cands[c].d);  // the samples' extra lead and tilt show the lean
   std::vector<SeedOutcome> outcomes;
   for (const Seed& sd : seeds) outcomes.push_back(track_seed(C, sd, cands));
   res.seeds_tried = static_cast<int>(seeds.size());
@@ -1138,7 +1188,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     gs.path_index = C.geo[i].path_index;
     gs.X_CT = C.pose_C(i, d, spin0, &gs.axis_offset);
     gs.X_BT = X_BC * gs.X_CT;
-    gs.extra_lead = d.lead;
+    gs.extra_lead = C.geo[i].dir * d.lead;  // toward this sample's travel
     gs.extra_tilt = d.tilt;
     gs.extra_spin = d.spin;
     if (shown && shown->nodes[i].has_q) {
@@ -1251,8 +1301,8 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     if (report >= 0) {
       res.message += strf(
           " for every IK branch (%d tried) and re-orientation (spin about the "
-          "tool axis, lean up to %.3f rad)",
-          res.seeds_tried, P.max_extra_tilt);
+          "tool axis, lean up to %.3f rad, lead alone up to %.3f rad)",
+          res.seeds_tried, P.max_extra_tilt, std::max(P.max_extra_tilt, P.max_extra_lead));
       if (shown->range_first < i)
         res.message += strf("; the problems start at sample %zu (path index %d)",
                             shown->range_first, res.samples[shown->range_first].path_index);
@@ -1272,7 +1322,15 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   res.reoriented_ranges = best->ranges;
   res.min_manipulability = best->min_manip;
 
-  // ---- Time parametrization, one segment at a time (each starts and ends at rest).
+  // ---- Time parametrization, one segment at a time (each starts and ends at rest). The
+  // samples keep limit_margin inside each range; the interpolation between them may use half
+  // of that (a quintic B-spline through samples at the margin swings a little past them), and
+  // still stays inside the executor's reference clamp (0.01 rad for the default 0.02).
+  RobotModel robot_timing = robot_in;
+  for (auto& L : robot_timing.limits) {
+    L.lower += P.limit_margin / 2;
+    L.upper -= P.limit_margin / 2;
+  }
   for (auto& g : res.segments) {
     std::vector<double> s;
     std::vector<Vector6> q;
@@ -1282,7 +1340,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     }
     TimingParams tp = P.timing;
     tp.feed = g.feed;
-    const TimingResult tr = time_parametrize(robot, s, q, tp);
+    const TimingResult tr = time_parametrize(robot_timing, s, q, tp);
     if (!tr.ok()) {
       const std::size_t i =
           g.first_sample + static_cast<std::size_t>(std::max(0, tr.failed_sample));

@@ -3,6 +3,8 @@
 // execution); scored against the truth.
 #include <gtest/gtest.h>
 
+#include <cmath>
+
 #include "scenario_run.hpp"
 
 using namespace flashtwin;
@@ -35,4 +37,27 @@ TEST(CurvedWalls, LongArcRoundTheDomeIsGroundInPieces) {
   const auto m = ftest::scenario_metrics("cover", 9008, false);
   EXPECT_EQ(m["trajectory.paths_failed"].get<int>(), 0);
   EXPECT_GT(m["trajectory.path_pieces"].get<int>(), m["trajectory.paths_planned"].get<int>());
+}
+
+// Seed 9015: the fin's plane is the parting plane, horizontal, and detection fitted it within
+// 0.03°; but each path's fin normal was then made square to the mean wall normal, which on a
+// dome (the normals on a cone round the vertical) turned it 57° off. The planner leans the
+// burr's shank along the fin normal turned into the wall, so the shank ran skewed round the
+// dome and the wrist passed its range (joint 5) on the side facing the arm: that path was not
+// ground at all (41 % of the flash removed).
+TEST(CurvedWalls, PathsRoundADomeKeepThePartingPlaneAsTheirFinNormal) {
+  auto sc = pipeline::load_scenario(ftest::source_path("scenarios/cover.yaml"));
+  pipeline::set_seed(sc, 9015);
+  sc.execution.enabled = false;
+  pipeline::RunOptions o;
+  o.report = false;
+  o.write_scan = false;
+  o.out_dir = ftest::temp_dir("cover_9015_fin_normal");
+  const auto r = pipeline::run_scenario(sc, o);
+  ASSERT_FALSE(r.refused) << r.verdict;
+  ASSERT_GE(r.detection.paths.size(), 2u);
+  for (const auto& p : r.detection.paths)
+    EXPECT_GT(p.fin_normal_C.normalized().z(), std::cos(2 * M_PI / 180))
+        << "fin normal " << p.fin_normal_C.transpose();
+  EXPECT_EQ(r.metrics["trajectory.paths_failed"].get<int>(), 0);
 }

@@ -46,8 +46,9 @@ struct GrindPath {
 
 /// Options of plan_grind (defaults for a 12 mm burr on steel flash).
 struct GrindParams {
-  double limit_margin = 0.02;   ///< [rad] the plan keeps this far inside each joint's position
-                                ///< range (the executor clamps its reference 0.01 rad inside)
+  double limit_margin = 0.02;   ///< [rad] the plan's samples keep this far inside each joint's
+                                ///< position range, the timed motion between them half as far
+                                ///< (the executor clamps its reference 0.01 rad inside)
   double spacing = 0.0005;      ///< arc-length spacing of the samples along the path [m]; the input
                                 ///< points are thinned to at least this spacing first
   double feed = 0.005;          ///< cutting feed of the finishing pass and pass links [m/s]: the
@@ -95,6 +96,13 @@ struct GrindParams {
   /// Largest extra lean of the tool axis (lead and tilt combined) allowed to escape a
   /// singularity or a joint limit [rad]; rotations about the tool axis are always allowed.
   double max_extra_tilt = 0.26;
+  /// Largest extra lead alone (the axis turned within the wall's tangent plane, toward or
+  /// against the travel) [rad], tried after the leans within max_extra_tilt and before any
+  /// tilt, in the same steps. A lead keeps the burr's side on the wall, so every root point is
+  /// still cut flush as the contact line passes it; a tilt stands the side off the wall and
+  /// leaves a wedge of flash (length/2 · sin tilt). Round a dome the wrist needs more of it
+  /// than a tilt could be allowed.
+  double max_extra_lead = 0.8;
   int reorient_steps = 4;  ///< extra leans tried: max_extra_tilt·k / reorient_steps, k = 1..
   /// Path length over which a re-orientation fades in and out on each side of the range that
   /// needs it [m] (quintic smoothstep), so the joint path stays smooth; doubled (up to ×4) when
@@ -102,7 +110,11 @@ struct GrindParams {
   double blend_length = 0.01;
   int spin_candidates = 4;  ///< base spins tried per IK branch: 2π·k / spin_candidates (≥ 1)
   unsigned branch_mask = 0xFF;  ///< IK branches allowed, bit IkBranch::index() (0xFF: all)
-  double max_joint_jump = 0.1;  ///< largest joint change between consecutive samples [rad]
+  /// Largest joint change between consecutive samples [rad]: more is a discontinuity (a wrist
+  /// flip turns joints 4 and 6 by about π). A wrist passing near its singular pose turns them
+  /// by up to 0.15 rad per 0.5 mm sample (cover seed 9003), which the timing slows to the
+  /// joints' speeds; at 0.1 such stretches had to lean with tilt and left a wedge of flash.
+  double max_joint_jump = 0.2;
   /// Time parametrization; its `feed` is ignored (each segment gets feed or approach_feed).
   TimingParams timing;
 };
@@ -130,7 +142,8 @@ struct GrindSample {
   Vector6 q = Vector6::Zero();   ///< joint configuration [rad] (on failure: as far as tracked)
   double manipulability = 0;     ///< |det J| at q
   double axis_offset = 0;        ///< o: axis distance from the root along n at the fin plane [m]
-  double extra_lead = 0, extra_tilt = 0, extra_spin = 0;  ///< re-orientation applied here [rad]
+  /// Re-orientation applied here [rad] (the lead toward this sample's travel).
+  double extra_lead = 0, extra_tilt = 0, extra_spin = 0;
 };
 
 /// A consecutive run of samples timed as one move (starts and ends at rest).
@@ -165,7 +178,9 @@ struct ReorientedRange {
   int pass = 0;                                   ///< pass of the first sample
   double nominal_min_manipulability = 0;          ///< lowest manipulability before (0 where no IK)
   double min_manipulability = 0;  ///< lowest manipulability after, over the blend window
-  double extra_lead = 0, extra_tilt = 0, extra_spin = 0;  ///< the re-orientation [rad]
+  /// The re-orientation [rad]; its lead turns the shank toward the path's own direction (the
+  /// order of points_C), on every pass alike.
+  double extra_lead = 0, extra_tilt = 0, extra_spin = 0;
   double blend_length = 0;  ///< fade length used on each side [m] (blend_length ×1, ×2 or ×4)
 };
 
