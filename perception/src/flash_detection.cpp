@@ -1567,10 +1567,11 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       // root: where the wall curves (the normals span a plane: a hole, a rounded corner) it is
       // that plane's normal, else the fitted fin normal less its part along the wall normal. A
       // plane fitted to a few points of a partly seen ring can be tens of degrees off. Not on a
-      // sloped wall (a dome, a cone: the normals lie on a cone round the fin normal, the fin
-      // leaves the wall at its slope): where the fitted plane is more than 10° from square to
-      // the mean wall normal it stands (cover 9015: the dome's parting plane, fitted within
-      // 0.03°, had been turned 57° off, and the burr's shank with it).
+      // wall sloping round the fin normal (a dome, a cone: the normals lie on a cone whose axis
+      // is the fin normal, and the fin leaves the wall at its slope): where the fitted plane is
+      // within 5° of the axis the normals turn about, it stands (cover 9015: the dome's parting
+      // plane, fitted within 0.03°, had been turned 57° off, and the burr's shank with it; a
+      // 2 mm fragment on a vertical wall, fitted 20° off, is still squared: housing 7016).
       {
         Mat3 M = Mat3::Zero();
         for (const auto& nrm : path.normals_C) M += nrm * nrm.transpose();
@@ -1583,7 +1584,18 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
         const Vec3 e0 = es.eigenvectors().col(0);
         const bool curved = es.eigenvalues()(1) > 0.05 && es.eigenvalues()(0) < 0.02 &&
                             std::abs(e0.dot(reg.normal_C)) > std::cos(M_PI / 4);
-        const bool sloped = std::abs(reg.normal_C.dot(es.eigenvectors().col(2))) > std::sin(M_PI / 18);
+        // The axis the wall normals turn about: the direction in which they do not vary.
+        Vec3 mean = Vec3::Zero();
+        for (const auto& nrm : path.normals_C) mean += nrm;
+        mean /= static_cast<double>(path.normals_C.size());
+        Mat3 Cn = Mat3::Zero();
+        for (const auto& nrm : path.normals_C) Cn += (nrm - mean) * (nrm - mean).transpose();
+        Cn /= static_cast<double>(path.normals_C.size());
+        const Eigen::SelfAdjointEigenSolver<Mat3> ec(Cn);
+        const bool sloped =
+            std::abs(reg.normal_C.dot(es.eigenvectors().col(2))) > std::sin(M_PI / 18) &&
+            ec.eigenvalues()(1) > 2e-4 &&
+            std::abs(ec.eigenvectors().col(0).dot(reg.normal_C)) > std::cos(M_PI / 36);
         Vec3 fn = curved ? e0 : (sloped ? reg.normal_C : along_wall);
         if (fn.norm() > 1e-6) {
           fn.normalize();

@@ -61,3 +61,23 @@ TEST(CurvedWalls, PathsRoundADomeKeepThePartingPlaneAsTheirFinNormal) {
         << "fin normal " << p.fin_normal_C.transpose();
   EXPECT_EQ(r.metrics["trajectory.paths_failed"].get<int>(), 0);
 }
+
+// Housing seed 7016: a 2.4 mm fragment of root on a vertical wall, its plane fitted from a few
+// points 20° off the parting plane, is still made square to its wall. Kept as fitted (the
+// first cut of the rule above), the shank leaned 20° with it and the arm, unable to follow
+// that plan, ran 14 mm off it (gouge 1.7 mm).
+TEST(CurvedWalls, AShortFragmentOnAVerticalWallIsSquaredToTheWall) {
+  auto sc = pipeline::load_scenario(ftest::source_path("scenarios/housing.yaml"));
+  pipeline::set_seed(sc, 7016);
+  sc.execution.enabled = false;
+  pipeline::RunOptions o;
+  o.report = false;
+  o.write_scan = false;
+  o.out_dir = ftest::temp_dir("housing_7016_fin_normal");
+  const auto r = pipeline::run_scenario(sc, o);
+  ASSERT_FALSE(r.refused) << r.verdict;
+  ASSERT_GE(r.detection.paths.size(), 6u);
+  for (const auto& p : r.detection.paths)
+    EXPECT_GT(p.fin_normal_C.normalized().z(), std::cos(2 * M_PI / 180))
+        << p.points_C.size() << " points, fin normal " << p.fin_normal_C.transpose();
+}
