@@ -12,10 +12,10 @@
 
 namespace ftest {
 
-/// The metrics of scenarios/<scenario>.yaml at `seed`; execution only when `execute` (else
-/// scan, perception and planning). Fails the calling test when the pose is refused.
-inline nlohmann::ordered_json scenario_metrics(const std::string& scenario, std::uint64_t seed,
-                                               bool execute) {
+/// scenarios/<scenario>.yaml run at `seed`; execution only when `execute` (else scan,
+/// perception and planning). Fails the calling test when the pose is refused.
+inline pipeline::RunResult scenario_run(const std::string& scenario, std::uint64_t seed,
+                                        bool execute) {
   auto sc = pipeline::load_scenario(source_path("scenarios/" + scenario + ".yaml"));
   pipeline::set_seed(sc, seed);
   sc.execution.enabled = execute;
@@ -23,9 +23,15 @@ inline nlohmann::ordered_json scenario_metrics(const std::string& scenario, std:
   o.report = false;
   o.write_scan = false;
   o.out_dir = temp_dir(scenario + "_" + std::to_string(seed));
-  const auto r = pipeline::run_scenario(sc, o);
+  auto r = pipeline::run_scenario(sc, o);
   EXPECT_FALSE(r.refused) << r.verdict;
-  return r.metrics;
+  return r;
+}
+
+/// The metrics of scenario_run.
+inline nlohmann::ordered_json scenario_metrics(const std::string& scenario, std::uint64_t seed,
+                                               bool execute) {
+  return scenario_run(scenario, seed, execute).metrics;
 }
 
 }  // namespace ftest

@@ -46,14 +46,7 @@ TEST(CurvedWalls, LongArcRoundTheDomeIsGroundInPieces) {
 // dome and the wrist passed its range (joint 5) on the side facing the arm: that path was not
 // ground at all (41 % of the flash removed).
 TEST(CurvedWalls, PathsRoundADomeKeepThePartingPlaneAsTheirFinNormal) {
-  auto sc = pipeline::load_scenario(ftest::source_path("scenarios/cover.yaml"));
-  pipeline::set_seed(sc, 9015);
-  sc.execution.enabled = false;
-  pipeline::RunOptions o;
-  o.report = false;
-  o.write_scan = false;
-  o.out_dir = ftest::temp_dir("cover_9015_fin_normal");
-  const auto r = pipeline::run_scenario(sc, o);
+  const auto r = ftest::scenario_run("cover", 9015, false);
   ASSERT_FALSE(r.refused) << r.verdict;
   ASSERT_GE(r.detection.paths.size(), 2u);
   for (const auto& p : r.detection.paths)
@@ -67,14 +60,7 @@ TEST(CurvedWalls, PathsRoundADomeKeepThePartingPlaneAsTheirFinNormal) {
 // first cut of the rule above), the shank leaned 20° with it and the arm, unable to follow
 // that plan, ran 14 mm off it (gouge 1.7 mm).
 TEST(CurvedWalls, AShortFragmentOnAVerticalWallIsSquaredToTheWall) {
-  auto sc = pipeline::load_scenario(ftest::source_path("scenarios/housing.yaml"));
-  pipeline::set_seed(sc, 7016);
-  sc.execution.enabled = false;
-  pipeline::RunOptions o;
-  o.report = false;
-  o.write_scan = false;
-  o.out_dir = ftest::temp_dir("housing_7016_fin_normal");
-  const auto r = pipeline::run_scenario(sc, o);
+  const auto r = ftest::scenario_run("housing", 7016, false);
   ASSERT_FALSE(r.refused) << r.verdict;
   ASSERT_GE(r.detection.paths.size(), 6u);
   for (const auto& p : r.detection.paths)
