@@ -31,10 +31,19 @@ TEST(CurvedWalls, FinOnADomeIsRootedWhereItsMidPlaneMeetsTheDome) {
 }
 
 // Seed 9008: a fin running 170 mm round the dome, the burr leaning with the wall: the wrist
-// would pass its range (joint 4 by 0.32 rad) two thirds of the way round. The path is ground
-// in pieces, split where the plan failed (each with its own approach and retract).
-TEST(CurvedWalls, LongArcRoundTheDomeIsGroundInPieces) {
+// would pass its range (joint 4 by 0.32 rad) two thirds of the way round, and the path had to
+// be ground in pieces. With the shank's lead kept on the casting across the passes' turn-rounds
+// and leads alone up to 0.8 rad, the arc is ground in one go.
+TEST(CurvedWalls, LongArcRoundTheDomeIsGroundInOneGo) {
   const auto m = ftest::scenario_metrics("cover", 9008, false);
+  EXPECT_EQ(m["trajectory.paths_failed"].get<int>(), 0);
+  EXPECT_EQ(m["trajectory.path_pieces"].get<int>(), m["trajectory.paths_planned"].get<int>());
+}
+
+// Tilted seed 8033: a path the wrist cannot follow in one go even so is ground in pieces, split
+// where the plan failed (each with its own approach and retract), and none fails.
+TEST(CurvedWalls, APathTheWristCannotFollowInOneGoIsGroundInPieces) {
+  const auto m = ftest::scenario_metrics("tilted", 8033, false);
   EXPECT_EQ(m["trajectory.paths_failed"].get<int>(), 0);
   EXPECT_GT(m["trajectory.path_pieces"].get<int>(), m["trajectory.paths_planned"].get<int>());
 }

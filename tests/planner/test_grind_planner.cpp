@@ -406,9 +406,8 @@ TEST(GrindPlanner, WristAtItsLimitRoundADomeIsFreedByALeadThatStaysOnTheCasting)
     EXPECT_LT(turn, 0.1) << "sample " << i;  // a fade turns it by at most ~0.05
     if (b.kind == SampleKind::kCut) {
       EXPECT_EQ(b.extra_tilt, 0.0);
-      const Vec3 n = path.normals_C[static_cast<std::size_t>(b.path_index)];
-      EXPECT_GT(wall_clearance(b.X_CT, path.points_C[static_cast<std::size_t>(b.path_index)], n,
-                               rad, len), -0.1e-3)
+      const auto k = static_cast<std::size_t>(b.path_index);
+      EXPECT_GT(wall_clearance(b.X_CT, path.points_C[k], path.normals_C[k], rad, len), -0.1e-3)
           << "sample " << i;
     }
   }
