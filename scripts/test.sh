@@ -3,7 +3,8 @@
 # Usage: scripts/test.sh [--sanitize]
 #   (no option)  ./build: every test, the scenario regression (ctest -L scenario) included
 #   --sanitize   ./build-asan with AddressSanitizer + UndefinedBehaviorSanitizer: the unit and
-#                CLI tests (not the scenario regression nor the whole-pass `pipeline` tests);
+#                CLI tests (not the scenario regression nor the whole-pass `pipeline` tests,
+#                which that build does not compile);
 #                any leak, memory error or undefined behaviour fails the test that caused it
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -25,7 +26,7 @@ case "${1:-}" in
     ctest -j2 --output-on-failure --timeout 1800 -LE "scenario|pipeline"
     ;;
   -h|--help)
-    sed -n '2,8p' "$0" | sed 's/^# \{0,1\}//'
+    sed -n '2,9p' "$0" | sed 's/^# \{0,1\}//'
     ;;
   *)
     echo "test.sh: unknown option $1 (expected --sanitize or nothing; --help explains)" >&2
