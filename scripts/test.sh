@@ -26,7 +26,7 @@ case "${1:-}" in
     ctest -j2 --output-on-failure --timeout 1800 -LE "scenario|pipeline"
     ;;
   -h|--help)
-    sed -n '2,9p' "$0" | sed 's/^# \{0,1\}//'
+    sed -n '2,8p' "$0" | sed 's/^# \{0,1\}//'
     ;;
   *)
     echo "test.sh: unknown option $1 (expected --sanitize or nothing; --help explains)" >&2
