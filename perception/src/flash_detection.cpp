@@ -1574,8 +1574,13 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       // 2 mm fragment on a vertical wall, fitted 20° off, is still squared: housing 7016).
       {
         Mat3 M = Mat3::Zero();
-        for (const auto& nrm : path.normals_C) M += nrm * nrm.transpose();
+        Vec3 mean = Vec3::Zero();
+        for (const auto& nrm : path.normals_C) {
+          M += nrm * nrm.transpose();
+          mean += nrm;
+        }
         M /= static_cast<double>(path.normals_C.size());
+        mean /= static_cast<double>(path.normals_C.size());
         const Eigen::SelfAdjointEigenSolver<Mat3> es(M);  // ascending eigenvalues
         const Vec3 along_wall = reg.normal_C - reg.normal_C.dot(es.eigenvectors().col(2)) *
                                                    es.eigenvectors().col(2);
@@ -1584,14 +1589,9 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
         const Vec3 e0 = es.eigenvectors().col(0);
         const bool curved = es.eigenvalues()(1) > 0.05 && es.eigenvalues()(0) < 0.02 &&
                             std::abs(e0.dot(reg.normal_C)) > std::cos(M_PI / 4);
-        // The axis the wall normals turn about: the direction in which they do not vary.
-        Vec3 mean = Vec3::Zero();
-        for (const auto& nrm : path.normals_C) mean += nrm;
-        mean /= static_cast<double>(path.normals_C.size());
-        Mat3 Cn = Mat3::Zero();
-        for (const auto& nrm : path.normals_C) Cn += (nrm - mean) * (nrm - mean).transpose();
-        Cn /= static_cast<double>(path.normals_C.size());
-        const Eigen::SelfAdjointEigenSolver<Mat3> ec(Cn);
+        // The axis the wall normals turn about: the direction in which they do not vary (their
+        // covariance, M less the mean's outer product).
+        const Eigen::SelfAdjointEigenSolver<Mat3> ec(Mat3(M - mean * mean.transpose()));
         const bool sloped =
             std::abs(reg.normal_C.dot(es.eigenvectors().col(2))) > std::sin(M_PI / 18) &&
             ec.eigenvalues()(1) > 2e-4 &&

@@ -671,6 +671,16 @@ std::vector<double> pass_offsets(const GrindParams& P, double height) {
   return e;
 }
 
+// The robot with every joint's position range shrunk by `margin` at both ends [rad].
+RobotModel with_limit_margin(const RobotModel& robot, double margin) {
+  RobotModel r = robot;
+  for (auto& L : r.limits) {
+    L.lower += margin;
+    L.upper -= margin;
+  }
+  return r;
+}
+
 // The largest extra lead at path sample k [rad]. A lead swings the burr's ends along the path
 // by a·sin(lead) (a: the farther end's axial distance from the root); where the wall is concave
 // along the path (curving toward its normal, as in a hole) it comes closer there by
@@ -721,11 +731,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   check_param(P.limit_margin >= 0 && P.limit_margin <= 0.2, "limit_margin", "0..0.2 [rad]", P.limit_margin);
   // Plans stay `limit_margin` inside every position range: a servo tracking a reference at the
   // very limit overshoots it, and the executor clamps its reference inside the range.
-  RobotModel robot = robot_in;
-  for (auto& L : robot.limits) {
-    L.lower += P.limit_margin;
-    L.upper -= P.limit_margin;
-  }
+  const RobotModel robot = with_limit_margin(robot_in, P.limit_margin);
   // ---- Input checks (bad input throws).
   check_param(P.spacing > 0 && std::isfinite(P.spacing), "spacing", "> 0 [m]", P.spacing);
   check_param(P.feed > 0 && std::isfinite(P.feed), "feed", "> 0 [m/s]", P.feed);
@@ -974,6 +980,11 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     double feed = 0;  ///< [m/s]; 0: the kind's feed (cutting or approach)
   };
   std::vector<SegDraft> segs;
+  // Each path sample's lead cap (the same on every pass), and the least of them.
+  std::vector<double> lead_cap(ps.size());
+  for (std::size_t k = 0; k < ps.size(); ++k)
+    lead_cap[k] = lead_cap_at(P, ps, k, std::max(tip_depth, length - tip_depth), path.closed);
+  const double min_lead_cap = ps.empty() ? 0.0 : *std::min_element(lead_cap.begin(), lead_cap.end());
   auto cut_geo = [&](int pass, std::size_t k) {
     // Open paths alternate direction from pass to pass (no traverse back through the air).
     const bool reverse = !path.closed && (pass % 2 == 1);
@@ -983,8 +994,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     g.n = q.n;
     g.t = reverse ? Vec3(-q.t) : q.t;
     g.dir = reverse ? -1 : 1;
-    g.lead_cap = lead_cap_at(P, ps, reverse ? ps.size() - 1 - k : k,
-                             std::max(tip_depth, length - tip_depth), path.closed);
+    g.lead_cap = lead_cap[reverse ? ps.size() - 1 - k : k];
     g.slope = slope[static_cast<std::size_t>(q.path_index)];
     g.extra = res.pass_offsets[static_cast<std::size_t>(pass)];
     g.kind = SampleKind::kCut;
@@ -1124,14 +1134,12 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   // to hold the burr upright close to the base): the whole path leans, the smallest lead alone
   // that gives seeds, else the smallest lean with tilt (a tilt of the whole path would leave a
   // wedge of flash along all of it: cover seed 9020, 0.18 rad, 1.3 mm).
-  const auto lean_allowed_everywhere = [&](const Dev& d) {
-    return std::all_of(C.geo.begin(), C.geo.end(),
-                       [&](const Geo& g) { return lean_allowed(P, g, d); });
-  };
+  Geo everywhere;  // the tightest allowance along the path
+  everywhere.lead_cap = min_lead_cap;
   for (const bool with_tilt : {false, true})
     for (std::size_t c = 0; c < cands.size() && seeds.empty(); ++c)
       if (cands[c].level > 0 && (cands[c].d.tilt != 0) == with_tilt &&
-          lean_allowed_everywhere(cands[c].d))
+          lean_allowed(P, everywhere, cands[c].d))
         seeds_leaning(cands[c].d);  // the samples' extra lead and tilt show the lean
   std::vector<SeedOutcome> outcomes;
   for (const Seed& sd : seeds) outcomes.push_back(track_seed(C, sd, cands));
@@ -1326,11 +1334,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   // samples keep limit_margin inside each range; the interpolation between them may use half
   // of that (a quintic B-spline through samples at the margin swings a little past them), and
   // still stays inside the executor's reference clamp (0.01 rad for the default 0.02).
-  RobotModel robot_timing = robot_in;
-  for (auto& L : robot_timing.limits) {
-    L.lower += P.limit_margin / 2;
-    L.upper -= P.limit_margin / 2;
-  }
+  const RobotModel robot_timing = with_limit_margin(robot_in, P.limit_margin / 2);
   for (auto& g : res.segments) {
     std::vector<double> s;
     std::vector<Vector6> q;

@@ -48,6 +48,18 @@ TEST(CurvedWalls, APathTheWristCannotFollowInOneGoIsGroundInPieces) {
   EXPECT_GT(m["trajectory.path_pieces"].get<int>(), m["trajectory.paths_planned"].get<int>());
 }
 
+namespace {
+
+// Every path's fin normal within 2° of the vertical (the parting plane of the shipped families
+// is horizontal).
+void expect_fin_normals_vertical(const pipeline::RunResult& r) {
+  for (const auto& p : r.detection.paths)
+    EXPECT_GT(p.fin_normal_C.normalized().z(), std::cos(2 * M_PI / 180))
+        << p.points_C.size() << " points, fin normal " << p.fin_normal_C.transpose();
+}
+
+}  // namespace
+
 // Seed 9015: the fin's plane is the parting plane, horizontal, and detection fitted it within
 // 0.03°; but each path's fin normal was then made square to the mean wall normal, which on a
 // dome (the normals on a cone round the vertical) turned it 57° off. The planner leans the
@@ -58,9 +70,7 @@ TEST(CurvedWalls, PathsRoundADomeKeepThePartingPlaneAsTheirFinNormal) {
   const auto r = ftest::scenario_run("cover", 9015, false);
   ASSERT_FALSE(r.refused) << r.verdict;
   ASSERT_GE(r.detection.paths.size(), 2u);
-  for (const auto& p : r.detection.paths)
-    EXPECT_GT(p.fin_normal_C.normalized().z(), std::cos(2 * M_PI / 180))
-        << "fin normal " << p.fin_normal_C.transpose();
+  expect_fin_normals_vertical(r);
   EXPECT_EQ(r.metrics["trajectory.paths_failed"].get<int>(), 0);
 }
 
@@ -72,7 +82,5 @@ TEST(CurvedWalls, AShortFragmentOnAVerticalWallIsSquaredToTheWall) {
   const auto r = ftest::scenario_run("housing", 7016, false);
   ASSERT_FALSE(r.refused) << r.verdict;
   ASSERT_GE(r.detection.paths.size(), 6u);
-  for (const auto& p : r.detection.paths)
-    EXPECT_GT(p.fin_normal_C.normalized().z(), std::cos(2 * M_PI / 180))
-        << p.points_C.size() << " points, fin normal " << p.fin_normal_C.transpose();
+  expect_fin_normals_vertical(r);
 }
