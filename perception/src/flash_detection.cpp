@@ -1349,6 +1349,36 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       return std::abs(cad.triangle_normal(static_cast<std::size_t>(t)).dot(reg.normal_C)) <
              std::cos(M_PI / 6);
     };
+    // A root has no fin between it and the casting: a boundary point with region points
+    // further towards the wall (within the fin plane, along the wall normal's part in it) is
+    // the fin's outer edge or its end face, low enough to pass for the root where the fin
+    // tapers. Snapped onto a sloped wall such points land down the slope beside the root
+    // (cover 9003, 9012: a second row 1-2 mm off the root along a tapering end; the grinding
+    // line ran out along one row and back along the other and turned 2-5 mm short of the end).
+    std::vector<Eigen::Vector3f> uvf(pts.size());
+    for (std::size_t i = 0; i < pts.size(); ++i)
+      uvf[i] = Eigen::Vector3f(static_cast<float>(uv[i].x()), static_cast<float>(uv[i].y()), 0.0f);
+    const detail::KdTree uv_tree(uvf);
+    const auto fin_toward_wall = [&](std::size_t i, int t) {
+      const Vec3 nt = cad.triangle_normal(static_cast<std::size_t>(t));
+      const Vec3 in = -(nt - nt.dot(reg.normal_C) * reg.normal_C);
+      Eigen::Vector2d d(e1.dot(in), e2.dot(in));
+      if (d.norm() < 0.1) return false;
+      d.normalize();
+      // A corridor from alpha to hidden_limit towards the wall, alpha to either side.
+      const double from = alpha, to = std::max(2 * alpha, hidden_limit), half = alpha;
+      const Eigen::Vector2d c = uv[i] + 0.5 * (from + to) * d;
+      std::vector<std::pair<std::uint32_t, float>> nb;
+      uv_tree.radius(Eigen::Vector3f(static_cast<float>(c.x()), static_cast<float>(c.y()), 0.0f),
+                     static_cast<float>(std::hypot(0.5 * (to - from), half)), nb);
+      int between = 0;
+      for (const auto& e : nb) {
+        const Eigen::Vector2d q = uv[e.first] - uv[i];
+        const double along = q.dot(d);
+        if (along >= from && along <= to && std::abs(q.x() * d.y() - q.y() * d.x()) <= half) ++between;
+      }
+      return between >= 3;
+    };
     for (std::size_t i = 0; i < pts.size(); ++i) {
       if (!bnd[i]) continue;
       ++reg.boundary_points;
@@ -1358,7 +1388,7 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       }
       // Snap onto the CAD surface: the path must not carry the scanner noise.
       const auto cp = cad_C.closest(pts[i], inner_limit * 1.5);
-      if (cp.triangle < 0 || !on_wall(cp.triangle)) continue;
+      if (cp.triangle < 0 || !on_wall(cp.triangle) || fin_toward_wall(i, cp.triangle)) continue;
       ++reg.inner_points;
       inner.push_back(cp.point);
       inner_n.push_back(cad.triangle_normal(static_cast<std::size_t>(cp.triangle)));
@@ -1370,7 +1400,7 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       const double r2 = hidden_cover * hidden_cover;
       for (std::size_t i : hidden) {
         const auto cp = cad_C.closest(pts[i], hidden_limit * 1.5);
-        if (cp.triangle < 0 || !on_wall(cp.triangle)) continue;
+        if (cp.triangle < 0 || !on_wall(cp.triangle) || fin_toward_wall(i, cp.triangle)) continue;
         bool covered = false;
         for (std::size_t j = 0; j < seen && !covered; ++j)
           covered = (inner[j] - cp.point).squaredNorm() < r2;
