@@ -106,6 +106,10 @@ struct RegistrationParams {
   /// peak); the pose is confident only when that peak is this many times the highest count
   /// more than three bands away from it (1: no check).
   double weak_direction_peak = 1.5;
+  /// After the polish, a turn (the translation following) whose stiffness at half the diagonal
+  /// is below this share of the strongest translation's is searched likewise (turns up to
+  /// 2/15 rad about its axis) for the pose that explains the most points.
+  double weak_turn_ratio = 0.01;
 };
 
 /// The project's registration: preprocessing, PCA alignment (4 proper rotations), 4PCS, ICP
