@@ -16,6 +16,7 @@
 #include <sstream>
 
 #include "flashtwin/core/errors.hpp"
+#include "flashtwin/core/format.hpp"
 #include "flashtwin/core/io.hpp"
 #include "flashtwin/core/mesh_query.hpp"
 #include "flashtwin/pipeline/scoring.hpp"
@@ -127,6 +128,31 @@ void write_paths(const std::string& dir, const perception::DetectionResult& det)
       << "element edge " << ne << "\nproperty int vertex1\nproperty int vertex2\nend_header\n"
       << vert.str() << edges.str();
   write_text_file((fs::path(dir) / "paths.ply").string(), ply.str());
+}
+
+std::vector<std::string> quality_failures(const QualityLimits& q, const json& m) {
+  std::vector<std::string> bad;
+  const auto number = [&](const char* key, double missing) {
+    return m.contains(key) && m[key].is_number() ? m[key].get<double>() : missing;
+  };
+  const bool ground = m.contains("removal.flash_removed_fraction");
+  const double flash_mm3 = number("casting.flash_volume_mm3", 0);
+  if (!ground && flash_mm3 <= 0) return bad;  // nothing on the part, nothing to remove
+  const double removed = number("removal.flash_removed_fraction", 0);
+  if (!(removed >= q.min_removed_fraction))
+    bad.push_back(strf("removed %.1f %% of the flash (limit %.1f %%)", removed * 100,
+                       q.min_removed_fraction * 100));
+  if (!ground) return bad;
+  const double residual = number("removal.residual_flash_max_mm", 1e300);
+  if (!(residual <= q.max_residual_mm))
+    bad.push_back(strf("flash left %.2f mm high (limit %.2f mm)", residual, q.max_residual_mm));
+  const double gouge = number("removal.gouge_max_mm", 1e300);
+  if (!(gouge <= q.max_gouge_mm))
+    bad.push_back(strf("gouged %.2f mm into the casting (limit %.2f mm)", gouge, q.max_gouge_mm));
+  const double stops = number("execution.paths_stopped_force_limit", 0);
+  if (stops > q.max_protective_stops)
+    bad.push_back(strf("%.0f protective stop(s) (limit %d)", stops, q.max_protective_stops));
+  return bad;
 }
 
 std::vector<std::string> check_expectations(const Scenario& sc, const json& metrics) {
@@ -595,6 +621,18 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   m["timing.planning_s"] = planning_s;
   m["timing.execution_s"] = execution_s;
   m["timing.total_s"] = seconds_since(t_total);
+  // --- Quality: the part against the scenario's limits (a refusal leaves it as it came).
+  if (!out.refused && sc.execution.enabled) {
+    const auto bad = quality_failures(sc.quality, m);
+    m["quality.pass"] = bad.empty();
+    m["quality.failures"] = bad;
+    if (!bad.empty() && out.exit_code == 0) {
+      out.exit_code = 1;
+      std::string why;
+      for (const auto& b : bad) why += (why.empty() ? "" : "; ") + b;
+      out.verdict = "bad part: " + why;
+    }
+  }
   if (!out.refused && out.exit_code == 0) {
     if (det.paths.empty()) {
       out.verdict = "nothing to grind";

@@ -444,6 +444,16 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     f.contact_damping = pr.get_double("contact_damping", 0, 1e6, f.contact_damping);
   }
 
+  if (root.has("quality")) {
+    const ConfigNode q = root.at("quality");
+    if (!q.is_map()) q.fail("expected a mapping of limits (removed_min, residual_max_mm, gouge_max_mm, protective_stops_max)");
+    auto& ql = sc.quality;
+    ql.min_removed_fraction = q.get_double("removed_min", 0, 1, ql.min_removed_fraction);
+    ql.max_residual_mm = q.get_double("residual_max_mm", 0, 100, ql.max_residual_mm);
+    ql.max_gouge_mm = q.get_double("gouge_max_mm", 0, 100, ql.max_gouge_mm);
+    ql.max_protective_stops =
+        static_cast<int>(q.get_int("protective_stops_max", 0, 1000000, ql.max_protective_stops));
+  }
   if (root.has("expect")) {
     const ConfigNode ex = root.at("expect");
     if (!ex.is_map()) ex.fail("expected a mapping of metric key: [min, max] or true/false");

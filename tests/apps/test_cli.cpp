@@ -305,7 +305,7 @@ TEST(Cli, RunIsDeterministicAndWritesTheClosedLoopOutputs) {
         "removal.residual_flash_max_mm", "removal.gouge_max_mm", "removal.gouge_volume_mm3",
         "force.mean_n", "force.rmse_n", "force.max_n", "timing.total_s", "timing.scan_s",
         "timing.perception_s", "timing.planning_s", "timing.execution_s", "sim.realtime_factor",
-        "scan.points", "scan.rays_per_s"})
+        "scan.points", "scan.rays_per_s", "quality.pass", "quality.failures"})
     EXPECT_TRUE(ma.contains(k)) << k;
   EXPECT_EQ(ma["execution.joint_limit_violations"], 0);
   EXPECT_GT(ma["removal.flash_removed_fraction"].get<double>(), 0.5);
@@ -382,6 +382,26 @@ TEST(Cli, RunRejectsBadScenariosWithExitTwo) {
   }
   for (const char* o : {"/o1", "/o2", "/o3", "/o4", "/o5", "/o8", "/o9", "/o10", "/o11", "/o12", "/o13"})
     EXPECT_FALSE(std::filesystem::exists(tmp + o + "/metrics.json")) << o;
+}
+
+// A part that fails its quality limits exits 1 and says why, in the summary, metrics.json and
+// the report's verdict; the scenario's expect: bounds are then notes, not the exit code. The
+// default plate with a protective stop at 100 N: its first cut trips it.
+TEST(Cli, ABadPartExitsOneAndSaysWhy) {
+  const std::string out = ftest::temp_dir("cli_bad_part");
+  const CliRun r = run("run " + ftest::source_path("scenarios/default.yaml") + " -o " + out +
+                       " --set execution.max_force=100");
+  EXPECT_EQ(r.code, 1) << r.err;
+  EXPECT_NE(r.out.find("bad part"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("protective stop"), std::string::npos) << r.out;
+  const auto m = nlohmann::json::parse(slurp(out + "/metrics.json"));
+  EXPECT_EQ(m["quality.pass"], false);
+  ASSERT_TRUE(m["quality.failures"].is_array());
+  EXPECT_FALSE(m["quality.failures"].empty());
+  EXPECT_EQ(m["exit_code"], 1);
+  const std::string report = slurp(out + "/report.html");
+  EXPECT_NE(report.find("verdict bad"), std::string::npos);
+  EXPECT_NE(report.find("bad part"), std::string::npos);
 }
 
 TEST(Cli, OutOfReachIsRefusedWithTheReason) {

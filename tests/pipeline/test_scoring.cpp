@@ -73,3 +73,44 @@ TEST(Scoring, ExpectationsReportEveryViolation) {
   EXPECT_NE(bad[1].find("path.coverage"), std::string::npos);
   EXPECT_NE(bad[2].find("missing.key"), std::string::npos);
 }
+
+TEST(Scoring, QualityNamesEveryLimitMissedAndByHowMuch) {
+  const QualityLimits q;  // removed >= 99 %, residual <= 0.2 mm, gouge <= 0.1 mm, no stop
+  nlohmann::ordered_json good;
+  good["casting.flash_volume_mm3"] = 900.0;
+  good["removal.flash_removed_fraction"] = 0.995;
+  good["removal.residual_flash_max_mm"] = 0.15;
+  good["removal.gouge_max_mm"] = 0.08;
+  good["execution.paths_stopped_force_limit"] = 0;
+  EXPECT_TRUE(quality_failures(q, good).empty());
+
+  nlohmann::ordered_json bad = good;
+  bad["removal.flash_removed_fraction"] = 0.44;
+  bad["removal.residual_flash_max_mm"] = 5.2;
+  bad["removal.gouge_max_mm"] = 1.5;
+  bad["execution.paths_stopped_force_limit"] = 1;
+  const auto f = quality_failures(q, bad);
+  ASSERT_EQ(f.size(), 4u);
+  EXPECT_NE(f[0].find("44.0 %"), std::string::npos) << f[0];
+  EXPECT_NE(f[1].find("5.20 mm"), std::string::npos) << f[1];
+  EXPECT_NE(f[2].find("1.50 mm"), std::string::npos) << f[2];
+  EXPECT_NE(f[3].find("protective stop"), std::string::npos) << f[3];
+
+  // Limits from the scenario's quality: block move the verdict.
+  QualityLimits loose;
+  loose.max_gouge_mm = 2;
+  loose.max_residual_mm = 6;
+  loose.min_removed_fraction = 0.4;
+  loose.max_protective_stops = 1;
+  EXPECT_TRUE(quality_failures(loose, bad).empty());
+
+  // A part nobody ground (no removal measured) with flash on it misses the removal limit; one
+  // without flash is good.
+  nlohmann::ordered_json untouched;
+  untouched["casting.flash_volume_mm3"] = 900.0;
+  const auto u = quality_failures(q, untouched);
+  ASSERT_EQ(u.size(), 1u);
+  EXPECT_NE(u[0].find("removed 0.0 %"), std::string::npos) << u[0];
+  untouched["casting.flash_volume_mm3"] = 0.0;
+  EXPECT_TRUE(quality_failures(q, untouched).empty());
+}

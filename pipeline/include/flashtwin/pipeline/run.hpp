@@ -89,6 +89,14 @@ void write_paths(const std::string& dir, const perception::DetectionResult& dete
 /// A metric value for JSON, which has no inf/NaN: those become null.
 nlohmann::ordered_json finite_or_null(double v);
 
+/// The part against the scenario's `quality:` limits, from the run's metrics
+/// (removal.flash_removed_fraction, removal.residual_flash_max_mm, removal.gouge_max_mm,
+/// execution.paths_stopped_force_limit): one line per limit missed, naming it and by how much.
+/// A part that was not ground (no metric of removal) with flash on it (casting.flash_volume_mm3
+/// above zero) misses the removal limit: none of its flash was removed.
+std::vector<std::string> quality_failures(const QualityLimits& limits,
+                                          const nlohmann::ordered_json& metrics);
+
 /// Checks the scenario's `expect:` bounds against metrics; returns one line per violation.
 std::vector<std::string> check_expectations(const Scenario& scenario,
                                             const nlohmann::ordered_json& metrics);

@@ -61,6 +61,16 @@ struct ExecutionSettings {
   sim::ForceParams force;         ///< grinding force model
 };
 
+/// `quality:` the limits of a good part (DESIGN.md `quality.pass`, `quality.failures`): a run
+/// whose part misses any of them, or that was refused, exits 1. `expect:` stays the regression
+/// check (`--check`). Collisions other than the burr's cut are not counted yet (no limit here).
+struct QualityLimits {
+  double min_removed_fraction = 0.99;  ///< `removed_min`: removal.flash_removed_fraction
+  double max_residual_mm = 0.2;        ///< `residual_max_mm`: removal.residual_flash_max_mm
+  double max_gouge_mm = 0.1;           ///< `gouge_max_mm`: removal.gouge_max_mm
+  int max_protective_stops = 0;        ///< `protective_stops_max`: paths stopped by the force limit
+};
+
 struct Scenario {
   std::string name;
   std::string file;         ///< the scenario file it was read from
@@ -93,6 +103,7 @@ struct Scenario {
     int width = 800, height = 600;  ///< [px], even
     int fps = 20;
   } video;
+  QualityLimits quality;                  ///< `quality:` limits of a good part
   std::vector<Expectation> expect;        ///< `expect:` bounds checked by regression runs
   SweepExpectation expect_sweep;          ///< `expect_sweep:` distribution bounds over seeds
 };
