@@ -687,6 +687,28 @@ int close_hole_arc(FlashPath& path, const MeshBvh& cad_C, const Vec3& w, double 
   return static_cast<int>(add_p.size());
 }
 
+namespace {
+
+// How many of the points `uv` (indexed by `tree`, z = 0) lie in the corridor leaving p along
+// the unit direction d: from `from` to `to` along it, at most `half` to either side.
+int points_in_corridor(const std::vector<Eigen::Vector2d>& uv, const detail::KdTree& tree,
+                       const Eigen::Vector2d& p, const Eigen::Vector2d& d, double from, double to,
+                       double half) {
+  const Eigen::Vector2d c = p + 0.5 * (from + to) * d;
+  std::vector<std::pair<std::uint32_t, float>> nb;
+  tree.radius(Eigen::Vector3f(static_cast<float>(c.x()), static_cast<float>(c.y()), 0.0f),
+              static_cast<float>(std::hypot(0.5 * (to - from), half)), nb);
+  int n = 0;
+  for (const auto& e : nb) {
+    const Eigen::Vector2d q = uv[e.first] - p;
+    const double along = q.dot(d);
+    n += along >= from && along <= to && std::abs(q.x() * d.y() - q.y() * d.x()) <= half;
+  }
+  return n;
+}
+
+}  // namespace
+
 std::vector<bool> alpha_boundary(const std::vector<Eigen::Vector2d>& uv, double alpha,
                                  const std::vector<bool>& test_only) {
   FT_ASSERT(alpha > 0);
@@ -1364,20 +1386,9 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
       const Vec3 in = -(nt - nt.dot(reg.normal_C) * reg.normal_C);
       Eigen::Vector2d d(e1.dot(in), e2.dot(in));
       if (d.norm() < 0.1) return false;
-      d.normalize();
       // A corridor from alpha to hidden_limit towards the wall, alpha to either side.
-      const double from = alpha, to = std::max(2 * alpha, hidden_limit), half = alpha;
-      const Eigen::Vector2d c = uv[i] + 0.5 * (from + to) * d;
-      std::vector<std::pair<std::uint32_t, float>> nb;
-      uv_tree.radius(Eigen::Vector3f(static_cast<float>(c.x()), static_cast<float>(c.y()), 0.0f),
-                     static_cast<float>(std::hypot(0.5 * (to - from), half)), nb);
-      int between = 0;
-      for (const auto& e : nb) {
-        const Eigen::Vector2d q = uv[e.first] - uv[i];
-        const double along = q.dot(d);
-        if (along >= from && along <= to && std::abs(q.x() * d.y() - q.y() * d.x()) <= half) ++between;
-      }
-      return between >= 3;
+      return points_in_corridor(uv, uv_tree, uv[i], d.normalized(), alpha,
+                                std::max(2 * alpha, hidden_limit), alpha) >= 3;
     };
     for (std::size_t i = 0; i < pts.size(); ++i) {
       if (!bnd[i]) continue;
