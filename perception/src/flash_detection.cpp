@@ -461,7 +461,7 @@ int join_continuing_paths(std::vector<FlashPath>& paths, double reach, double sp
 // (round_flange 6115: the normals turned to +z halfway along a rim's flat, every IK branch then
 // had to swing the wrist by 1.8 rad at the switch, and the fin stayed whole).
 int repair_fin_parallel_normals(FlashPath& path, const Vec3& fin_normal_C) {
-  const double lim = std::cos(M_PI / 6);  // within 30°: as the region's root snaps (on_wall)
+  const double lim = std::cos(M_PI / 12);  // within 15°: as the region's root snaps (on_wall)
   const std::size_t n = path.normals_C.size();
   std::vector<std::size_t> walls;
   for (std::size_t i = 0; i < n; ++i)
@@ -1369,7 +1369,7 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
     // (within 30°) is the face the fin lies on or runs along, not its root.
     const auto on_wall = [&](int t) {
       return std::abs(cad.triangle_normal(static_cast<std::size_t>(t)).dot(reg.normal_C)) <
-             std::cos(M_PI / 6);
+             std::cos(M_PI / 12);
     };
     // A root has no fin between it and the casting: a boundary point with region points
     // further towards the wall (within the fin plane, along the wall normal's part in it) is
