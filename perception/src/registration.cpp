@@ -1212,10 +1212,11 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
         // block. A turn ω about the origin moves the fit's translation by −K_tt⁻¹ K_tr ω, which
         // is a turn about the axis through a = ω̂ × t per unit turn.
         const Mat3 Ktt = AtA.bottomRightCorner<3, 3>(), Krt = AtA.topRightCorner<3, 3>();
-        const Mat3 S = AtA.topLeftCorner<3, 3>() - Krt * Ktt.ldlt().solve(Mat3(Krt.transpose()));
+        const Eigen::LDLT<Mat3> Ktt_inv = Ktt.ldlt();
+        const Mat3 S = AtA.topLeftCorner<3, 3>() - Krt * Ktt_inv.solve(Mat3(Krt.transpose()));
         const Eigen::SelfAdjointEigenSolver<Mat3> er(S);
         weak.turn_axis = er.eigenvectors().col(0);
-        const Vec3 t_per_turn = -Ktt.ldlt().solve(Vec3(Krt.transpose() * weak.turn_axis));
+        const Vec3 t_per_turn = -Ktt_inv.solve(Vec3(Krt.transpose() * weak.turn_axis));
         weak.turn_point = weak.turn_axis.cross(t_per_turn);
         const double r = 0.5 * diag;
         weak.turn_ratio = ev[2] > 0 ? er.eigenvalues()[0] / (r * r) / ev[2] : 1.0;
@@ -1282,6 +1283,16 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
                   away, wp.offset * 1e3, wp.peak_ratio);
     return wp;
   };
+  // Along a one-parameter family of moves (move(v) for v in [-reach, reach], `step` apart), the
+  // one whose pose explains the most points, and that count; (0, base) when none beats `base`.
+  const auto most_explained = [&](const auto& move, double reach, double step, double base) {
+    std::pair<double, double> best_v{0.0, base};
+    for (double v = -reach; v <= reach + 1e-12; v += step) {
+      const double c = count(explained(move(v) * best.T));
+      if (c > best_v.second) best_v = {v, c};
+    }
+    return best_v;
+  };
   if (p.point_to_plane) {
     const Weak weak = polish(best.T);
     Weak latest = weak;  // the last polish's
@@ -1292,16 +1303,13 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
     if (weak.ratio < p.weak_direction_ratio) {
       const double step = 0.25 * diag * p.fine_voxel, reach = diag / 15;
       const double base_count = count(explained(best.T));
-      double best_count = base_count, best_offset = 0;
-      for (double d = -reach; d <= reach + 1e-12; d += step) {
-        Pose S = Pose::Identity();
-        S.translation() = d * weak.dir;
-        const double c = count(explained(S * best.T));
-        if (c > best_count) {
-          best_count = c;
-          best_offset = d;
-        }
-      }
+      const auto [best_offset, best_count] = most_explained(
+          [&](double d) {
+            Pose S = Pose::Identity();
+            S.translation() = d * weak.dir;
+            return S;
+          },
+          reach, step, base_count);
       spdlog::debug("register: weak direction [{:.3f} {:.3f} {:.3f}] (eigenvalue ratio {:.3g}): "
                     "best offset {:.2f} mm explains {:.0f} vs {:.0f}",
                     weak.dir.x(), weak.dir.y(), weak.dir.z(), weak.ratio, best_offset * 1e3,
@@ -1334,14 +1342,7 @@ RegistrationResult register_scan(const PointCloud& source, const ModelTarget& ta
         S.translation() = latest.turn_point - S.linear() * latest.turn_point;
         return S;
       };
-      double best_count = base_count, best_angle = 0;
-      for (double a = -reach; a <= reach + 1e-12; a += step) {
-        const double c = count(explained(turned(a) * best.T));
-        if (c > best_count) {
-          best_count = c;
-          best_angle = a;
-        }
-      }
+      const auto [best_angle, best_count] = most_explained(turned, reach, step, base_count);
       spdlog::debug("register: weak turn about [{:.3f} {:.3f} {:.3f}] (stiffness ratio {:.3g}): best "
                     "turn {:.3f} deg explains {:.0f} vs {:.0f}",
                     latest.turn_axis.x(), latest.turn_axis.y(), latest.turn_axis.z(), latest.turn_ratio,
