@@ -39,13 +39,25 @@ double seconds_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
-
-
 // Runs without an output folder (sweeps, several threads) each get their own temporary cell.
 std::size_t next_temp_id() {
   static std::atomic<std::size_t> id{0};
   return id++;
 }
+
+/// A scratch folder removed when the run leaves scope, by return or by exception (a sweep's
+/// failed runs once left half a gigabyte each in /tmp). Empty path: nothing to remove.
+struct ScratchFolder {
+  fs::path path;
+  explicit ScratchFolder(fs::path p) : path(std::move(p)) {}
+  ScratchFolder(const ScratchFolder&) = delete;
+  ScratchFolder& operator=(const ScratchFolder&) = delete;
+  ~ScratchFolder() {
+    if (path.empty()) return;
+    std::error_code ec;
+    fs::remove_all(path, ec);
+  }
+};
 
 void progress(const RunOptions& o, const std::string& stage, double f) {
   if (o.progress) o.progress(stage, f);
@@ -371,6 +383,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
                                                        ("flashtwin_run_" + std::to_string(::getpid()) + "_" +
                                                         std::to_string(next_temp_id()));
   const auto t_scan = Clock::now();
+  const ScratchFolder scratch{write ? fs::path() : cell_dir};
   const ScenarioScan ss = scan_scenario(sc, cell_dir.string(), opt.threads);
   const double scan_s = seconds_since(t_scan);
   const CellSetup& setup = ss.setup;
@@ -660,10 +673,6 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
       ReportInputs ri{sc, ss, out, planned_paths, exec_summary};
       write_report(dir.string(), ri);
     }
-  }
-  if (!write) {
-    std::error_code ec;
-    fs::remove_all(cell_dir, ec);
   }
   progress(opt, "done", 1.0);
   return out;
