@@ -970,6 +970,35 @@ FinPlane fin_plane(const std::vector<Vec3>& pts, const std::vector<bool>& touch,
   return out;
 }
 
+// The fin normal on a flat wall sloping towards the fin, from the fin's top face alone.
+// Where every root point's wall normal lies within 2° of their mean the wall is one plane, not
+// a hole's arc, so a plane fitted to the fin is no narrow band's guess; but a low fin (under
+// about ten times its thickness) spreads too little over its plane to pass the spread test,
+// and its heights would go along the wall (on a 45° wall a 5 mm fin's root came 3.4 mm down the
+// slope). The whole fin's least-squares plane leans by a few degrees: the scanner sees its top
+// face and outer edge, not its underside (a 5 mm fin 0.8 mm thick: 2.8°, 0.2 mm at the root).
+// The top face's plane (RANSAC over the outer half's points with a band of three times the
+// scanner noise, at least 30 µm) does not; it must lie within 10° of the fin's fitted normal.
+// Empty when the wall is not flat or no top face stands out. Oriented like `fin_n`.
+std::optional<Vec3> flat_sloped_wall_normal(const std::vector<Vec3>& wall_n,
+                                            const std::vector<Vec3>& outer_half, const Vec3& fin_n,
+                                            double noise_sigma) {
+  if (wall_n.empty() || outer_half.size() < 20) return std::nullopt;
+  Vec3 mean = Vec3::Zero();
+  for (const auto& v : wall_n) mean += v;
+  if (mean.norm() < 1e-9) return std::nullopt;
+  mean.normalize();
+  for (const auto& v : wall_n)
+    if (v.dot(mean) < std::cos(2 * M_PI / 180)) return std::nullopt;
+  const std::vector<bool> all(outer_half.size(), true);
+  bool consensus = false;
+  const Plane top = fit_fin_plane(outer_half, all, std::max(30e-6, 3 * noise_sigma), &consensus);
+  Vec3 n = top.n;
+  if (n.dot(fin_n) < 0) n = -n;
+  if (n.dot(fin_n) < std::cos(10 * M_PI / 180)) return std::nullopt;
+  return n;
+}
+
 DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, const Pose& X_CM,
                              const DetectionParams& params) {
   const auto t0 = Clock::now();
@@ -1449,8 +1478,19 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
     // no one direction: heights go along the fin normal, and the root onto the CAD's section
     // by the mid-plane (below). Only when the fitted normal can be trusted: the fin spreads
     // over its plane ten times more than across it (a narrow band, a few millimetres of a
-    // hole's ring, can fit a plane tilted by tens of degrees, and the walls then look sloped).
-    const bool sloped = slope >= std::sin(10 * M_PI / 180) && fin.spread(1) > 100 * fin.spread(0);
+    // hole's ring, can fit a plane tilted by tens of degrees, and the walls then look sloped),
+    // or the wall is flat (see flat_sloped_wall_normal).
+    const bool tilted_to_fin = slope >= std::sin(10 * M_PI / 180);
+    bool sloped = tilted_to_fin && fin.spread(1) > 100 * fin.spread(0);
+    if (tilted_to_fin && !sloped) {
+      std::vector<Vec3> outer;
+      for (std::size_t i = 0; i < pts.size(); ++i)
+        if (height[i] > 0.5 * hmax) outer.push_back(pts[i]);
+      if (const auto n_top = flat_sloped_wall_normal(inner_n, outer, reg.normal_C, res.noise_sigma)) {
+        sloped = true;
+        wk.w = *n_top;
+      }
+    }
     if (!sloped && nw.norm() > 0.5 * static_cast<double>(inner_n.size())) {
       nw.normalize();
       const Vec3 w = reg.normal_C - reg.normal_C.dot(nw) * nw;

@@ -180,6 +180,75 @@ TEST(FlashDetection, HiddenRootStretchIsBridgedByTheFinEdgeNearestTheWall) {
   EXPECT_LT(worst, 0.2e-3);
 }
 
+// A block whose +y wall is one flat face sloping 45° (it faces up and out), with a fin 0.8 mm
+// thick at z = 15 mm standing 2 mm out from it over x < 0 and 5 mm over x > 5 mm, thinning to a
+// quarter of that over its last 3 mm at each end, as generated fins do. Seen from above: the
+// block's top, the wall except under the fin, the fin's top face, outer edge and ends.
+// - Such a fin is too low to pass the "spreads 100 times more over its plane than across it"
+//   test, and its heights had been taken along the wall: the whole line lay 3.4 mm down the
+//   slope. A flat wall's fin takes its top face's normal: every path point now on the root.
+// - Where the fin is low its outer edge comes within the hidden-root band of the wall and,
+//   snapped onto the slope, lands 1-2 mm down it beside the root: no path may come back along
+//   itself (a hairpin turning short of the fin's end), and the root is covered to within
+//   1.5 mm of both ends.
+TEST(FlashDetection, LowFinOnAFlatSlopedWallIsRootedOnItInOneRow) {
+  TriangleMesh cad = box_mesh(Vec3(-0.05, -0.03, 0), Vec3(0.05, 0.03, 0.03));
+  for (auto& v : cad.vertices)
+    if (v.y() > 0.029 && v.z() < 0.001) v.y() = 0.06;
+  const auto wall_y = [](double z) { return 0.06 - z; };
+  const double zc = 0.015, t = 0.8e-3, x0 = -0.04, x1 = 0.04, step = 0.1e-3, sigma = 0.03e-3;
+  const auto height = [&](double x) {
+    const double e = std::min(x - x0, x1 - x) / 0.003;
+    const double h = x < 0 ? 2e-3 : (x > 0.005 ? 5e-3 : 2e-3 + 3e-3 * x / 0.005);
+    return h * (e < 1 ? 0.25 + 0.75 * e : 1.0);
+  };
+  const auto tip_y = [&](double x) { return wall_y(zc) + height(x); };
+  Rng rng(5);
+  PointCloud scan_C;
+  const auto add = [&](const Vec3& p, const Vec3& n) {
+    scan_C.points.push_back((p + rng.normal() * sigma * n).cast<float>());
+  };
+  const auto in_fin_x = [&](double x) { return x >= x0 && x <= x1; };
+  for (double x = -0.05 + step / 2; x < 0.05; x += step) {
+    for (double y = -0.03 + step / 2; y < 0.03; y += step) add(Vec3(x, y, 0.03), Vec3::UnitZ());
+    // The wall, a sample every `step` along its slope; none inside the fin or under it.
+    for (double z = step / 2; z < 0.03; z += step / std::sqrt(2.0)) {
+      if (in_fin_x(x) && std::abs(z - zc) <= t / 2) continue;
+      if (in_fin_x(x) && z < zc && wall_y(z) < tip_y(x)) continue;
+      add(Vec3(x, wall_y(z), z), Vec3(0, 1, 1).normalized());
+    }
+    if (!in_fin_x(x)) continue;
+    for (double y = wall_y(zc + t / 2) + step / 2; y < tip_y(x); y += step)
+      add(Vec3(x, y, zc + t / 2), Vec3::UnitZ());
+    for (double z = zc - t / 2 + step / 2; z < zc + t / 2; z += step) add(Vec3(x, tip_y(x), z), Vec3::UnitY());
+  }
+  for (const double xe : {x0, x1})
+    for (double z = zc - t / 2 + step / 2; z < zc + t / 2; z += step)
+      for (double y = wall_y(z) + step / 2; y < tip_y(xe); y += step)
+        add(Vec3(xe, y, z), Vec3(xe < 0 ? -1 : 1, 0, 0));
+  const MeshBvh bvh(cad);
+  const auto r = detect_flash(to_scanner(scan_C), bvh, kX_CM);
+  ASSERT_TRUE(r.ran);
+  ASSERT_FALSE(r.paths.empty());
+  const Vec3 a(x0, wall_y(zc), zc), b(x1, wall_y(zc), zc);
+  double lo = 1, hi = -1;
+  for (const auto& path : r.paths) {
+    std::vector<double> s(path.points_C.size(), 0.0);
+    for (std::size_t i = 1; i < s.size(); ++i) s[i] = s[i - 1] + (path.points_C[i] - path.points_C[i - 1]).norm();
+    for (std::size_t i = 0; i < s.size(); ++i) {
+      const Vec3& p = path.points_C[i];
+      EXPECT_LT(distance_to_segment(p, a, b), 0.3e-3) << "path point " << p.transpose() << " off the root";
+      lo = std::min(lo, p.x());
+      hi = std::max(hi, p.x());
+      for (std::size_t j = i + 1; j < s.size(); ++j)
+        ASSERT_FALSE(s[j] - s[i] > 5e-3 && (path.points_C[j] - p).norm() < 1e-3)
+            << "the path comes back along itself at " << p.transpose();
+    }
+  }
+  EXPECT_LT(lo, x0 + 1.5e-3);
+  EXPECT_GT(hi, x1 - 1.5e-3);
+}
+
 TEST(FlashDetection, HoleFlashIsOneClosedLoop) {
   // A plate with a 20 x 20 mm square hole; a 1 mm ring fin sticks 2 mm into the hole.
   Part part;
