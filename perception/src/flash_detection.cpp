@@ -970,7 +970,432 @@ FinPlane fin_plane(const std::vector<Vec3>& pts, const std::vector<bool>& touch,
   return out;
 }
 
-// The fin normal on a flat wall sloping towards the fin, from the fin's top face alone.
+namespace {
+
+// ---------------------------------------------------------------------------------------------
+// detect_flash's stages, in the order it runs them.
+
+// Bad input is refused before any work: an empty or non-finite scan, a pose that is not rigid,
+// a CAD model without triangles.
+void check_inputs(const PointCloud& scan_M, const TriangleMesh& cad, const Pose& X_CM) {
+  if (scan_M.empty()) throw ArgumentError("scan: expected at least one point, got an empty cloud");
+  for (std::size_t i = 0; i < scan_M.size(); ++i)
+    if (!scan_M.points[i].allFinite())
+      throw ArgumentError("scan: expected finite coordinates, got NaN/inf at point " +
+                          std::to_string(i));
+  const Mat3 R = X_CM.linear();
+  if (!X_CM.matrix().allFinite() || (R.transpose() * R - Mat3::Identity()).norm() > 1e-6 ||
+      std::abs(R.determinant() - 1) > 1e-6)
+    throw ArgumentError("pose X_CM: expected a rigid transform (orthonormal rotation, det +1)");
+  if (cad.triangles.empty()) throw ArgumentError("CAD model: expected triangles, got none");
+}
+
+// The scan in {C}, cropped to the CAD model's box grown by `margin` (drops most of the table
+// and fixture).
+struct CroppedScan {
+  std::vector<std::uint32_t> index;  // the scan point of each kept point
+  std::vector<Vec3> points_C;
+};
+
+// A scan whose extent is 50 times larger or smaller than the model's, or with fewer than ten
+// points near it, is another part or in other units: refused (ArgumentError).
+CroppedScan crop_to_cad(const PointCloud& scan_M, const TriangleMesh& cad, const Pose& X_CM,
+                        double margin) {
+  Vec3 lo, hi;
+  cad.bounds(lo, hi);
+  const double cad_diag = (hi - lo).norm();
+  const Eigen::AlignedBox3d box(lo - Vec3::Constant(margin), hi + Vec3::Constant(margin));
+  CroppedScan out;
+  Eigen::AlignedBox3d scan_box;
+  for (std::size_t i = 0; i < scan_M.size(); ++i) {
+    const Vec3 p = X_CM * scan_M.points[i].cast<double>();
+    scan_box.extend(p);
+    if (box.contains(p)) {
+      out.index.push_back(static_cast<std::uint32_t>(i));
+      out.points_C.push_back(p);
+    }
+  }
+  const double scan_diag = scan_box.diagonal().norm();
+  if (scan_diag > 50 * cad_diag || scan_diag < cad_diag / 50 || out.index.size() < 10) {
+    std::ostringstream os;
+    os << "scan and CAD model do not match: the scan spans " << scan_diag << " m, the CAD model "
+       << cad_diag << " m, and " << out.index.size()
+       << " scan points lie near the CAD model (expected both in metres and the pose mapping the "
+          "scan onto the model)";
+    throw ArgumentError(os.str());
+  }
+  return out;
+}
+
+// Distance of every point to the CAD surface (true point-to-triangle distance, BVH), searched
+// only within `far`: beyond it a point gets `far` whatever its exact distance.
+std::vector<double> distances_to_cad(const std::vector<Vec3>& pc, const MeshBvh& cad_C, double far) {
+  const std::size_t m = pc.size();
+  std::vector<double> dist(m);
+  // In chunks of consecutive points (neighbours along a scan line), each query hinted with the
+  // previous answer: the search starts bounded, with the same result.
+  const std::ptrdiff_t chunk = 4096, chunks = (static_cast<std::ptrdiff_t>(m) + chunk - 1) / chunk;
+#pragma omp parallel for schedule(dynamic, 1) if (m >= 8192)
+  for (std::ptrdiff_t c = 0; c < chunks; ++c) {
+    int hint = -1;
+    const auto end = std::min<std::size_t>(m, static_cast<std::size_t>((c + 1) * chunk));
+    for (auto k = static_cast<std::size_t>(c * chunk); k < end; ++k) {
+      const auto cp = cad_C.closest(pc[k], far, hint);
+      dist[k] = cp.triangle < 0 ? far : cp.distance;
+      if (cp.triangle >= 0) hint = cp.triangle;
+    }
+  }
+  return dist;
+}
+
+// The scanner's noise σ: the given one, else estimated from the points on the surface, whose
+// distances are ~ |N(0, σ)|: σ ≈ median / 0.6745 over the points within `max_threshold`
+// (flash points are a minority and sit far off).
+double scanner_noise(const std::vector<double>& dist, const DetectionParams& P) {
+  if (P.noise_sigma > 0) return P.noise_sigma;
+  std::vector<double> near;
+  near.reserve(dist.size());
+  for (const double d : dist)
+    if (d < P.max_threshold) near.push_back(d);
+  return near.empty() ? P.min_threshold : percentile(near, 0.5) / 0.6745;
+}
+
+// Median spacing of the candidates (sets the clustering, alpha and gap scales): the nearest
+// neighbour's, and across scan lines. Line scanners sample densely along a profile and
+// sparsely across profiles: besides the nearest-neighbour spacing, the spacing across (nearest
+// neighbour off the line through the nearest one) sets the scales that must bridge profiles.
+void candidate_spacing(const std::vector<Eigen::Vector3f>& cf, const detail::KdTree& tree,
+                       DetectionResult& res) {
+  std::vector<double> sp, sp_cross;
+  const std::size_t step = std::max<std::size_t>(1, cf.size() / 2000);
+  constexpr std::size_t K = 32;
+  std::uint32_t id[K];
+  float d2[K];
+  for (std::size_t c = 0; c < cf.size(); c += step) {
+    const std::size_t k = tree.knn(cf[c], K, id, d2);
+    if (k < 2) continue;
+    sp.push_back(std::sqrt(static_cast<double>(d2[1])));
+    const Eigen::Vector3f d1 = (cf[id[1]] - cf[c]).normalized();
+    for (std::size_t t = 2; t < k; ++t) {
+      const Eigen::Vector3f dq = cf[id[t]] - cf[c];
+      if (std::abs(dq.normalized().dot(d1)) < 0.7071f) {
+        sp_cross.push_back(std::sqrt(static_cast<double>(d2[t])));
+        break;
+      }
+    }
+  }
+  res.spacing = std::max(1e-5, percentile(sp, 0.5));
+  res.spacing_across = std::max(res.spacing, percentile(sp_cross, 0.5));
+}
+
+// The candidates left after the support planes, which the stages after them work on.
+struct Live {
+  std::vector<std::uint32_t> k;     // index into the cropped scan of each
+  std::vector<Eigen::Vector3f> pf;  // its position in {C} (float, for the k-d trees)
+};
+
+// The scales of one detection, set by the parameters or else by the scan's spacing and
+// threshold [m].
+struct Scales {
+  double spacing = 0;       // across scan lines
+  double tol = 0;           // Euclidean clustering tolerance
+  double far = 0;           // distances to the CAD searched up to here
+  double alpha = 0;         // alpha-shape radius
+  double gap = 0;           // a longer gap splits a grinding line
+  double inner_limit = 0;   // a boundary point this close to the CAD is a root point
+  double hidden_limit = 0;  // up to here it stands for a hidden stretch of root
+  double hidden_cover = 0;  // a snapped edge point this close to a seen root point adds nothing
+};
+
+// Where a view saw a fin only obliquely its scan lines lie farther apart than `tol`, and
+// each line became a cluster of its own. Small clusters are re-clustered among themselves
+// at a larger tolerance (big ones are left as they are).
+// Only fragments that reach the casting take part (a scan line across a fin runs from its
+// root to its edge; stray points and clutter mostly do not), and rise clearly off it (`rise`:
+// noise tails and mixed pixels just past the threshold, scattered over a face, would otherwise
+// join up).
+void recluster_fragments(std::vector<std::vector<std::uint32_t>>& clusters, const Live& live,
+                         const std::vector<double>& dist, double reach, double rise, double tol,
+                         const DetectionParams& P) {
+  const std::size_t small = 5 * static_cast<std::size_t>(P.min_region_points);
+  std::vector<std::uint32_t> frag;  // indices into live
+  std::vector<std::vector<std::uint32_t>> kept;
+  // A fragment: a small cluster (≥ 5 points) that reaches the casting and rises off it.
+  const auto fragment = [&](const std::vector<std::uint32_t>& cl) {
+    bool touches = false, rises = false;
+    if (cl.size() < small && cl.size() >= 5)
+      for (auto v : cl) {
+        const double dv = dist[live.k[v]];
+        touches = touches || dv < reach;
+        rises = rises || dv > rise;
+      }
+    return touches && rises;
+  };
+  for (auto& cl : clusters) {
+    if (fragment(cl)) frag.insert(frag.end(), cl.begin(), cl.end());
+    else kept.push_back(std::move(cl));
+  }
+  if (!frag.empty()) {
+    std::vector<Eigen::Vector3f> ff(frag.size());
+    for (std::size_t i = 0; i < frag.size(); ++i) ff[i] = live.pf[frag[i]];
+    const detail::KdTree ftree(ff);
+    std::size_t merged = 0;
+    for (auto& cl : detail::euclidean_clusters(ff, ftree, static_cast<float>(P.fragment_merge * tol))) {
+      for (auto& v : cl) v = frag[v];
+      merged += cl.size() >= small;
+      kept.push_back(std::move(cl));
+    }
+    spdlog::debug("detect: {} points in small clusters re-clustered at {:.3f} mm: {} region(s) "
+                  "of at least {} points",
+                  frag.size(), P.fragment_merge * tol * 1e3, merged, small);
+  }
+  clusters = std::move(kept);
+}
+
+// Small clusters that rise off the casting (single scan lines along a fin's root, or across
+// its outer part where a wall hid the rest from every view) join the region they reach
+// through each other within fragment_merge × tol: without them the root there has no
+// boundary points and the grinding line breaks off. A breadth-first search from the
+// regions (≥ 5 × min_region_points) hands each reached cluster to the region it was reached
+// from. Only clusters in the region's fin plane join it (within the thickest flash, 1.5 mm):
+// clutter off the part (a fixture's edge) does not.
+void join_rising_clusters(std::vector<std::vector<std::uint32_t>>& clusters, const Live& live,
+                          const std::vector<double>& dist, const std::vector<Vec3>& pc,
+                          double rise, double tol, const DetectionParams& P) {
+  const std::size_t small = 5 * static_cast<std::size_t>(P.min_region_points);
+  std::vector<char> cand_cl(clusters.size(), 0);
+  std::vector<std::uint32_t> cp;  // points of the candidate clusters (indices into live)
+  std::vector<std::size_t> ck;    // their cluster
+  for (std::size_t k = 0; k < clusters.size(); ++k) {
+    const auto& cl = clusters[k];
+    if (cl.size() >= small || cl.size() < 5) continue;
+    bool rises = false;
+    for (auto v : cl) rises = rises || dist[live.k[v]] > rise;
+    if (!rises) continue;
+    cand_cl[k] = 1;
+    for (auto v : cl) {
+      cp.push_back(v);
+      ck.push_back(k);
+    }
+  }
+  if (cp.empty()) return;
+  std::vector<Eigen::Vector3f> cfp(cp.size());
+  for (std::size_t i = 0; i < cp.size(); ++i) cfp[i] = live.pf[cp[i]];
+  const detail::KdTree ctree(cfp);
+  std::vector<std::pair<std::uint32_t, float>> nb;
+  std::vector<std::size_t> owner(clusters.size(), clusters.size());
+  std::vector<Plane> plane(clusters.size());
+  std::deque<std::size_t> queue;
+  for (std::size_t k = 0; k < clusters.size(); ++k)
+    if (clusters[k].size() >= small) {
+      owner[k] = k;
+      queue.push_back(k);
+      std::vector<Vec3> pts;
+      for (auto v : clusters[k]) pts.push_back(pc[live.k[v]]);
+      plane[k] = fit_plane(pts);
+    }
+  const auto in_plane = [&](std::size_t c, const Plane& pl) {
+    for (auto v : clusters[c])
+      if (std::abs(pl.dist(pc[live.k[v]])) > 1.5e-3) return false;
+    return true;
+  };
+  while (!queue.empty()) {
+    const std::size_t k = queue.front();
+    queue.pop_front();
+    const Plane& pl = plane[owner[k]];
+    for (auto v : clusters[k]) {
+      ctree.radius(live.pf[v], static_cast<float>(P.fragment_merge * tol), nb);
+      for (const auto& [j, d2] : nb) {
+        const std::size_t c = ck[j];
+        if (owner[c] < clusters.size() || !in_plane(c, pl)) continue;
+        owner[c] = owner[k];
+        queue.push_back(c);
+      }
+    }
+  }
+  std::size_t joined = 0;
+  for (std::size_t k = 0; k < clusters.size(); ++k) {
+    if (!cand_cl[k] || owner[k] >= clusters.size()) continue;
+    auto& to = clusters[owner[k]];
+    to.insert(to.end(), clusters[k].begin(), clusters[k].end());
+    joined += clusters[k].size();
+    clusters[k].clear();
+  }
+  if (joined > 0)
+    spdlog::debug("detect: {} points of small clusters joined the regions they reach", joined);
+}
+
+// One flash region's points and what the passes after the region stage keep of it.
+struct RegionWork {
+  std::vector<Vec3> inner, inner_n;  // snapped inner-boundary points and CAD normals
+  Vec3 w = Vec3::UnitZ();            // height direction along the wall
+  double top = 0;                    // height of the visible face at the root
+  double mid = 0;                    // height of the mid-plane
+  bool resolved = false;             // mid-plane seen at the fin's edge
+  bool shift = false;                // the root goes to the mid-plane
+  Vec3 at_mid(Vec3 p) const {
+    if (shift) p += (mid - w.dot(p)) * w;
+    return p;
+  }
+};
+
+// A cluster's points in {C} and their heights over the CAD surface.
+struct ClusterPoints {
+  std::vector<Vec3> pts;
+  std::vector<double> height;
+  std::vector<bool> touch;  // within inner_limit of the CAD
+  double hmax = 0;
+  std::size_t touching = 0;
+};
+
+// The points and how many touch the casting; their heights only when at least three do (the
+// distances were searched only up to `far`; a flash region's own points get their full
+// distance to the CAD: fins stand up to centimetres off the surface).
+ClusterPoints cluster_points(const std::vector<std::uint32_t>& cl, const Live& live,
+                             const std::vector<Vec3>& pc, const std::vector<double>& dist,
+                             const MeshBvh& cad_C, const Scales& s) {
+  ClusterPoints c;
+  c.pts.reserve(cl.size());
+  c.touch.resize(cl.size());
+  for (std::size_t i = 0; i < cl.size(); ++i) {
+    const auto k = live.k[cl[i]];
+    c.pts.push_back(pc[k]);
+    c.touch[i] = dist[k] < s.inner_limit;
+    c.touching += c.touch[i];
+  }
+  if (c.touching < 3) return c;
+  c.height.resize(cl.size());
+  for (std::size_t i = 0; i < cl.size(); ++i) {
+    const auto k = live.k[cl[i]];
+    c.height[i] = dist[k] < s.far ? dist[k] : cad_C.closest(pc[k]).distance;
+    c.hmax = std::max(c.hmax, c.height[i]);
+  }
+  return c;
+}
+
+// Where the consensus plane won, the points off it by more than the band and the scanner's
+// noise are not the fin: a fixture's top (taken for the fin's outer edge, it put 6115's
+// mid-plane 7 mm above the root) or the face of a clamp beside the fin's tip, 2 mm under
+// its plane (taken for the fin's lower edge, it put default 5013's 1 mm below).
+void drop_points_off_fin_plane(std::vector<std::uint32_t>& cl, ClusterPoints& c, const Plane& fin,
+                               double off) {
+  std::size_t k = 0;
+  c.hmax = 0;
+  c.touching = 0;
+  for (std::size_t i = 0; i < cl.size(); ++i) {
+    if (std::abs(fin.dist(c.pts[i])) > off) continue;
+    cl[k] = cl[i];
+    c.pts[k] = c.pts[i];
+    c.height[k] = c.height[i];
+    c.hmax = std::max(c.hmax, c.height[k]);
+    c.touching += c.touch[i];
+    ++k;
+  }
+  if (k < cl.size())
+    spdlog::debug("detect: {} of a region's {} points lie off its fin plane: dropped", cl.size() - k, cl.size());
+  cl.resize(k);
+  c.pts.resize(k);
+  c.height.resize(k);
+}
+
+// The region's points in the fin plane's coordinates (u along the major axis, v along the
+// minor) and its extents.
+std::vector<Eigen::Vector2d> fin_plane_coordinates(const std::vector<Vec3>& pts, const Plane& fin,
+                                                   FlashRegion& reg) {
+  const Vec3 e1 = fin.axes.col(2), e2 = fin.axes.col(1);
+  double u0 = 1e300, u1 = -1e300, v0 = 1e300, v1 = -1e300;
+  std::vector<Eigen::Vector2d> uv(pts.size());
+  for (std::size_t i = 0; i < pts.size(); ++i) {
+    uv[i] = Eigen::Vector2d(e1.dot(pts[i] - reg.centroid_C), e2.dot(pts[i] - reg.centroid_C));
+    u0 = std::min(u0, uv[i].x());
+    u1 = std::max(u1, uv[i].x());
+    v0 = std::min(v0, uv[i].y());
+    v1 = std::max(v1, uv[i].y());
+  }
+  reg.extent_major = u1 - u0;
+  reg.extent_minor = v1 - v0;
+  return uv;
+}
+
+// The root: the region's inner boundary snapped onto the walls it stands out of.
+struct RootPoints {
+  std::vector<Vec3> points, normals;  // on the CAD surface, with its normals there
+};
+
+// Alpha-shape boundary. Only the points near the casting can be on the inner boundary,
+// so the rolling circle is tried there (the outer boundary is not needed for the path).
+// Points up to hidden_limit off the CAD are tried too: where the root itself is hidden
+// from every view (a wall above the fin blocks the triangulation camera), the fin's edge
+// nearest to the casting stands for it.
+RootPoints root_points(const ClusterPoints& c, const std::vector<Eigen::Vector2d>& uv,
+                       const Plane& fin, const MeshBvh& cad_C, const Scales& s, FlashRegion& reg) {
+  const TriangleMesh& cad = cad_C.mesh();
+  const Vec3 e1 = fin.axes.col(2), e2 = fin.axes.col(1);
+  const auto& pts = c.pts;
+  std::vector<bool> test(pts.size());
+  for (std::size_t i = 0; i < pts.size(); ++i) test[i] = c.height[i] < s.hidden_limit;
+  const auto bnd = alpha_boundary(uv, s.alpha, test);
+  RootPoints root;
+  std::vector<std::size_t> hidden;  // boundary points beyond the inner band
+  // A root lies on a wall the fin stands out of: a snap onto a face parallel to the fin
+  // (within 15°) is the face the fin lies on or runs along, not its root (30° had dropped every
+  // root point of a fin high on a flat dome, its wall 25-30° off the fin plane: cover 9141).
+  const auto on_wall = [&](int t) {
+    return std::abs(cad.triangle_normal(static_cast<std::size_t>(t)).dot(reg.normal_C)) <
+           std::cos(M_PI / 12);
+  };
+  // A root has no fin between it and the casting: a boundary point with region points
+  // further towards the wall (within the fin plane, along the wall normal's part in it) is
+  // the fin's outer edge or its end face, low enough to pass for the root where the fin
+  // tapers. Snapped onto a sloped wall such points land down the slope beside the root
+  // (cover 9003, 9012: a second row 1-2 mm off the root along a tapering end; the grinding
+  // line ran out along one row and back along the other and turned 2-5 mm short of the end).
+  std::vector<Eigen::Vector3f> uvf(pts.size());
+  for (std::size_t i = 0; i < pts.size(); ++i)
+    uvf[i] = Eigen::Vector3f(static_cast<float>(uv[i].x()), static_cast<float>(uv[i].y()), 0.0f);
+  const detail::KdTree uv_tree(uvf);
+  const auto fin_toward_wall = [&](std::size_t i, int t) {
+    const Vec3 nt = cad.triangle_normal(static_cast<std::size_t>(t));
+    const Vec3 in = -(nt - nt.dot(reg.normal_C) * reg.normal_C);
+    Eigen::Vector2d d(e1.dot(in), e2.dot(in));
+    if (d.norm() < 0.1) return false;
+    // A corridor from alpha to hidden_limit towards the wall, alpha to either side.
+    return points_in_corridor(uv, uv_tree, uv[i], d.normalized(), s.alpha,
+                              std::max(2 * s.alpha, s.hidden_limit), s.alpha) >= 3;
+  };
+  const auto add = [&](const auto& cp) {
+    ++reg.inner_points;
+    root.points.push_back(cp.point);
+    root.normals.push_back(cad.triangle_normal(static_cast<std::size_t>(cp.triangle)));
+  };
+  for (std::size_t i = 0; i < pts.size(); ++i) {
+    if (!bnd[i]) continue;
+    ++reg.boundary_points;
+    if (c.height[i] >= s.inner_limit) {
+      hidden.push_back(i);
+      continue;
+    }
+    // Snap onto the CAD surface: the path must not carry the scanner noise.
+    const auto cp = cad_C.closest(pts[i], s.inner_limit * 1.5);
+    if (cp.triangle < 0 || !on_wall(cp.triangle) || fin_toward_wall(i, cp.triangle)) continue;
+    add(cp);
+  }
+  // Hidden stretches of root: boundary points of the wider band whose snap lands away from
+  // every root point seen (so they fill gaps and never compete with the seen root).
+  const std::size_t seen = root.points.size();
+  const double r2 = s.hidden_cover * s.hidden_cover;
+  for (std::size_t i : hidden) {
+    const auto cp = cad_C.closest(pts[i], s.hidden_limit * 1.5);
+    if (cp.triangle < 0 || !on_wall(cp.triangle) || fin_toward_wall(i, cp.triangle)) continue;
+    bool covered = false;
+    for (std::size_t j = 0; j < seen && !covered; ++j)
+      covered = (root.points[j] - cp.point).squaredNorm() < r2;
+    if (!covered) add(cp);
+  }
+  return root;
+}
+
+// The fin's fitted normal on a flat wall sloping towards the fin, from the fin's top face alone.
 // Where every root point's wall normal lies within 2° of their mean the wall is one plane, not
 // a hole's arc, so a plane fitted to the fin is no narrow band's guess; but a low fin (under
 // about ten times its thickness) spreads too little over its plane to pass the spread test,
@@ -999,531 +1424,111 @@ std::optional<Vec3> flat_sloped_wall_normal(const std::vector<Vec3>& wall_n,
   return n;
 }
 
-DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, const Pose& X_CM,
-                             const DetectionParams& params) {
-  const auto t0 = Clock::now();
-  check_params(params);
-  if (scan_M.empty()) throw ArgumentError("scan: expected at least one point, got an empty cloud");
-  for (std::size_t i = 0; i < scan_M.size(); ++i)
-    if (!scan_M.points[i].allFinite())
-      throw ArgumentError("scan: expected finite coordinates, got NaN/inf at point " +
-                          std::to_string(i));
-  const Mat3 R = X_CM.linear();
-  if (!X_CM.matrix().allFinite() || (R.transpose() * R - Mat3::Identity()).norm() > 1e-6 ||
-      std::abs(R.determinant() - 1) > 1e-6)
-    throw ArgumentError("pose X_CM: expected a rigid transform (orthonormal rotation, det +1)");
-  const TriangleMesh& cad = cad_C.mesh();
-  if (cad.triangles.empty()) throw ArgumentError("CAD model: expected triangles, got none");
-  const auto& P = params;
-
-  DetectionResult res;
-  const std::size_t n = scan_M.size();
-  res.labels.assign(n, kDetectIgnored);
-  Vec3 lo, hi;
-  cad.bounds(lo, hi);
-  const double cad_diag = (hi - lo).norm();
-  const Eigen::AlignedBox3d box(lo - Vec3::Constant(P.crop_margin), hi + Vec3::Constant(P.crop_margin));
-
-  // Into {C}; crop to the grown CAD box (drops most of the table and fixture).
-  std::vector<std::uint32_t> crop;
-  std::vector<Vec3> pc;
-  Eigen::AlignedBox3d scan_box;
-  for (std::size_t i = 0; i < n; ++i) {
-    const Vec3 p = X_CM * scan_M.points[i].cast<double>();
-    scan_box.extend(p);
-    if (box.contains(p)) {
-      crop.push_back(static_cast<std::uint32_t>(i));
-      pc.push_back(p);
-    }
+// The direction heights are measured along (RegionWork::w). Height direction: the fin normal
+// made perpendicular to the mean wall normal (walls around a loop average out: then the fin
+// normal itself). On walls sloping towards the fin (a dome: more than 10° on average) "along
+// the wall" is no one direction: heights go along the fin normal, and the root onto the CAD's
+// section by the mid-plane (trace_region). Only when the fitted normal can be trusted: the fin
+// spreads over its plane ten times more than across it (a narrow band, a few millimetres of a
+// hole's ring, can fit a plane tilted by tens of degrees, and the walls then look sloped), or
+// the wall is flat (flat_sloped_wall_normal).
+Vec3 height_direction(const ClusterPoints& c, const RootPoints& root, const Plane& fin,
+                      const Vec3& fin_n, double noise_sigma) {
+  Vec3 nw = Vec3::Zero();
+  double slope = 0;  // mean |sin| of the walls' slope towards the fin normal
+  for (const auto& v : root.normals) {
+    nw += v;
+    slope += std::abs(v.dot(fin_n)) / static_cast<double>(root.normals.size());
   }
-  const double scan_diag = scan_box.diagonal().norm();
-  if (scan_diag > 50 * cad_diag || scan_diag < cad_diag / 50 || crop.size() < 10) {
-    std::ostringstream os;
-    os << "scan and CAD model do not match: the scan spans " << scan_diag << " m, the CAD model "
-       << cad_diag << " m, and " << crop.size()
-       << " scan points lie near the CAD model (expected both in metres and the pose mapping the "
-          "scan onto the model)";
-    throw ArgumentError(os.str());
+  const bool tilted_to_fin = slope >= std::sin(10 * M_PI / 180);
+  if (tilted_to_fin && fin.spread(1) > 100 * fin.spread(0)) return fin_n;
+  if (tilted_to_fin) {
+    std::vector<Vec3> outer;
+    for (std::size_t i = 0; i < c.pts.size(); ++i)
+      if (c.height[i] > 0.5 * c.hmax) outer.push_back(c.pts[i]);
+    if (const auto n_top = flat_sloped_wall_normal(root.normals, outer, fin_n, noise_sigma)) return *n_top;
   }
-  res.cropped_points = crop.size();
-
-  // Distance of every kept point to the CAD surface (true point-to-triangle distance, BVH),
-  // searched only within `far`: beyond it a point is a candidate whatever its exact distance.
-  const double far = 2 * P.max_threshold;
-  const std::size_t m = crop.size();
-  std::vector<double> dist(m);
-  std::vector<int> tri(m);
-  // In chunks of consecutive points (neighbours along a scan line), each query hinted with the
-  // previous answer: the search starts bounded, with the same result.
-  const std::ptrdiff_t chunk = 4096, chunks = (static_cast<std::ptrdiff_t>(m) + chunk - 1) / chunk;
-#pragma omp parallel for schedule(dynamic, 1) if (m >= 8192)
-  for (std::ptrdiff_t c = 0; c < chunks; ++c) {
-    int hint = -1;
-    const auto end = std::min<std::size_t>(m, static_cast<std::size_t>((c + 1) * chunk));
-    for (auto k = static_cast<std::size_t>(c * chunk); k < end; ++k) {
-      const auto cp = cad_C.closest(pc[k], far, hint);
-      dist[k] = cp.triangle < 0 ? far : cp.distance;
-      tri[k] = cp.triangle;
-      if (cp.triangle >= 0) hint = cp.triangle;
-    }
+  if (nw.norm() > 0.5 * static_cast<double>(root.normals.size())) {
+    nw.normalize();
+    const Vec3 w = fin_n - fin_n.dot(nw) * nw;
+    if (w.norm() > 0.5) return w.normalized();
   }
+  return fin_n;
+}
 
-  // Noise: points on the surface have |distance| ~ |N(0, σ)|, so σ ≈ median / 0.6745 over the
-  // points near the surface (flash points are a minority and sit far off).
-  if (P.noise_sigma > 0) {
-    res.noise_sigma = P.noise_sigma;
-  } else {
-    std::vector<double> near;
-    near.reserve(m);
-    for (std::size_t k = 0; k < m; ++k)
-      if (dist[k] < P.max_threshold) near.push_back(dist[k]);
-    res.noise_sigma = near.empty() ? P.min_threshold : percentile(near, 0.5) / 0.6745;
+// The scanner sees the fin's upper face; the root lies on its mid-plane. Where the fin's
+// edge (its outer half) shows its thickness, the mid-height there, measured along the
+// height direction, is the fin's mid-plane (a symmetric fin, the parting plane across the wall).
+void measure_mid_plane(const ClusterPoints& c, double noise_sigma, RegionWork& wk, FlashRegion& reg) {
+  std::vector<double> h_outer, h_inner;
+  for (std::size_t i = 0; i < c.pts.size(); ++i)
+    if (c.height[i] > 0.5 * c.hmax) h_outer.push_back(wk.w.dot(c.pts[i]));
+  for (const auto& p : wk.inner) h_inner.push_back(wk.w.dot(p));
+  wk.top = percentile(h_inner, 0.5);
+  if (h_outer.size() < 20) return;
+  // The top face is the bulk (its median is its height); the lowest edge points mark the
+  // fin's bottom.
+  const double top = percentile(h_outer, 0.5);
+  const double bottom = percentile(h_outer, 0.01);
+  reg.thickness = std::max(0.0, top - bottom);
+  if (reg.thickness > 3 * noise_sigma) {
+    wk.resolved = true;
+    wk.mid = 0.5 * (top + bottom);
   }
-  res.threshold = std::clamp(P.threshold_sigmas * res.noise_sigma, P.min_threshold, P.max_threshold);
+}
 
-  std::vector<std::uint32_t> cand;  // indices into crop
-  for (std::size_t k = 0; k < m; ++k) {
-    if (dist[k] > res.threshold) cand.push_back(static_cast<std::uint32_t>(k));
-    else res.labels[crop[k]] = kDetectBody;
+// One cluster made a flash region: its fin plane, root and mid-plane. Labels its points flash
+// when it stands off the casting and touches it; no region when it never comes near the
+// surface (fixture, robot, stray points) or its root lies on no wall seen (labelled flash, no
+// grinding line).
+std::optional<std::pair<FlashRegion, RegionWork>> analyse_region(
+    std::vector<std::uint32_t>& cl, const Live& live, const CroppedScan& crop,
+    const std::vector<double>& dist, const MeshBvh& cad_C, const Pose& X_CM, const Scales& s,
+    DetectionResult& res) {
+  std::sort(cl.begin(), cl.end());
+  ClusterPoints c = cluster_points(cl, live, crop.points_C, dist, cad_C, s);
+  // A flash grows out of the casting: a cluster that never comes near the surface is
+  // something else (fixture, robot, stray points).
+  if (c.touching < 3) {
+    spdlog::debug("detect: cluster of {} points never near the CAD: dropped", cl.size());
+    return std::nullopt;
   }
-  res.candidate_points = cand.size();
-  if (cand.size() < static_cast<std::size_t>(P.min_region_points)) {
-    res.ran = true;
-    res.message = "nothing to grind: no point lies off the CAD surface";
-    res.time_s = std::chrono::duration<double>(Clock::now() - t0).count();
-    return res;
-  }
+  // Fins are at most 1.5 mm thick: a fin's points lie within 1.5 mm of its plane.
+  bool consensus = false;
+  const Plane fin = fit_fin_plane(c.pts, c.touch, 1.5e-3, &consensus);
+  if (consensus) drop_points_off_fin_plane(cl, c, fin, 1.5e-3 + 3 * res.noise_sigma);
+  FlashRegion reg;
+  reg.points.reserve(cl.size());
+  for (auto v : cl) reg.points.push_back(crop.index[live.k[v]]);
+  reg.centroid_C = fin.c;
+  // The fin normal faces the scanner (the origin of {M}).
+  reg.normal_C = fin.n;
+  if (reg.normal_C.dot(X_CM.translation() - reg.centroid_C) < 0) reg.normal_C = -reg.normal_C;
+  const auto uv = fin_plane_coordinates(c.pts, fin, reg);
+  reg.max_height = c.hmax;
+  RootPoints root = root_points(c, uv, fin, cad_C, s, reg);
+  spdlog::debug("detect: region of {} points, {} near the CAD, {} boundary, {} inner, fin normal ({:.3f}, {:.3f}, {:.3f})",
+                cl.size(), c.touching, reg.boundary_points, root.points.size(), reg.normal_C.x(),
+                reg.normal_C.y(), reg.normal_C.z());
+  for (auto idx : reg.points) res.labels[idx] = kDetectFlash;
+  // Flash (it stands off the casting and touches it) whose root is nowhere on a wall seen:
+  // labelled, but it gives no grinding line.
+  if (root.points.size() < 3) return std::nullopt;
+  RegionWork wk;
+  wk.w = height_direction(c, root, fin, reg.normal_C, res.noise_sigma);
+  wk.inner = std::move(root.points);
+  wk.inner_n = std::move(root.normals);
+  measure_mid_plane(c, res.noise_sigma, wk, reg);
+  return std::make_pair(std::move(reg), std::move(wk));
+}
 
-  // Median spacing of the candidates (sets the clustering, alpha and gap scales).
-  std::vector<Eigen::Vector3f> cf(cand.size());
-  for (std::size_t c = 0; c < cand.size(); ++c) cf[c] = pc[cand[c]].cast<float>();
-  const detail::KdTree cand_tree(cf);
-  {
-    const detail::KdTree& tree = cand_tree;
-    // Line scanners sample densely along a profile and sparsely across profiles: besides the
-    // nearest-neighbour spacing, the spacing across (nearest neighbour off the line through
-    // the nearest one) sets the scales that must bridge profiles.
-    std::vector<double> sp, sp_cross;
-    const std::size_t step = std::max<std::size_t>(1, cand.size() / 2000);
-    constexpr std::size_t K = 32;
-    std::uint32_t id[K];
-    float d2[K];
-    for (std::size_t c = 0; c < cand.size(); c += step) {
-      const std::size_t k = tree.knn(cf[c], K, id, d2);
-      if (k < 2) continue;
-      sp.push_back(std::sqrt(static_cast<double>(d2[1])));
-      const Eigen::Vector3f d1 = (cf[id[1]] - cf[c]).normalized();
-      for (std::size_t t = 2; t < k; ++t) {
-        const Eigen::Vector3f dq = cf[id[t]] - cf[c];
-        if (std::abs(dq.normalized().dot(d1)) < 0.7071f) {
-          sp_cross.push_back(std::sqrt(static_cast<double>(d2[t])));
-          break;
-        }
-      }
-    }
-    res.spacing = std::max(1e-5, percentile(sp, 0.5));
-    res.spacing_across = std::max(res.spacing, percentile(sp_cross, 0.5));
-  }
-  const double spacing = res.spacing_across;
-
-  const std::vector<bool> alive =
-      support_plane_mask(pc, cand, cand_tree, cf, dist, cad, P, res.support_points);
-
-  spdlog::debug("detect: {} cropped, {} candidates, threshold {:.4f} mm, spacing {:.3f}/{:.3f} mm, {} on supports",
-                m, cand.size(), res.threshold * 1e3, res.spacing * 1e3, spacing * 1e3, res.support_points);
-  // Euclidean clustering of the surviving candidates.
-  const double tol = P.cluster_tolerance > 0 ? P.cluster_tolerance : 3 * spacing;
-  std::vector<std::uint32_t> live;
-  std::vector<Eigen::Vector3f> lf;
-  for (std::size_t c = 0; c < cand.size(); ++c)
-    if (alive[c]) {
-      live.push_back(static_cast<std::uint32_t>(c));
-      lf.push_back(cf[c]);
-    }
-  detail::KdTree ltree(lf);
-  std::vector<int> cluster(live.size(), -1);
-  std::vector<std::vector<std::uint32_t>> clusters;  // indices into live
-  {
-    std::vector<std::pair<std::uint32_t, float>> nb;
-    for (std::size_t s = 0; s < live.size(); ++s) {
-      if (cluster[s] >= 0) continue;
-      const int id = static_cast<int>(clusters.size());
-      clusters.emplace_back();
-      auto& cl = clusters.back();
-      cl.push_back(static_cast<std::uint32_t>(s));
-      cluster[s] = id;
-      for (std::size_t q = 0; q < cl.size(); ++q) {
-        ltree.radius(lf[cl[q]], static_cast<float>(tol), nb);
-        for (const auto& [j, d2] : nb)
-          if (cluster[j] < 0) {
-            cluster[j] = id;
-            cl.push_back(j);
-          }
-      }
-    }
-  }
-
-  // Where a view saw a fin only obliquely its scan lines lie farther apart than `tol`, and
-  // each line became a cluster of its own. Small clusters are re-clustered among themselves
-  // at a larger tolerance (big ones are left as they are).
-  // Only fragments that reach the casting take part (a scan line across a fin runs from its
-  // root to its edge; stray points and clutter mostly do not).
-  if (P.fragment_merge > 1) {
-    const std::size_t small = 5 * static_cast<std::size_t>(P.min_region_points);
-    const double reach = res.threshold + (P.inner_band > 0 ? P.inner_band : 1.5 * spacing);
-    std::vector<std::uint32_t> frag;  // indices into live
-    std::vector<std::vector<std::uint32_t>> kept;
-    // ... and rise clearly off it (noise tails and mixed pixels just past the threshold,
-    // scattered over a face, would otherwise join up).
-    const double rise = std::max(0.5e-3, 4 * res.threshold);
-    // A fragment: a small cluster (≥ 5 points) that reaches the casting and rises off it.
-    const auto fragment = [&](const std::vector<std::uint32_t>& cl) {
-      bool touches = false, rises = false;
-      if (cl.size() < small && cl.size() >= 5)
-        for (auto v : cl) {
-          const double dv = dist[cand[live[v]]];
-          touches = touches || dv < reach;
-          rises = rises || dv > rise;
-        }
-      return touches && rises;
-    };
-    for (auto& cl : clusters) {
-      if (fragment(cl)) frag.insert(frag.end(), cl.begin(), cl.end());
-      else kept.push_back(std::move(cl));
-    }
-    if (!frag.empty()) {
-      std::vector<Eigen::Vector3f> ff(frag.size());
-      for (std::size_t i = 0; i < frag.size(); ++i) ff[i] = lf[frag[i]];
-      detail::KdTree ftree(ff);
-      std::vector<int> fc(frag.size(), -1);
-      std::vector<std::pair<std::uint32_t, float>> nb;
-      std::size_t merged = 0;
-      for (std::size_t s0 = 0; s0 < frag.size(); ++s0) {
-        if (fc[s0] >= 0) continue;
-        std::vector<std::uint32_t> cl{static_cast<std::uint32_t>(s0)};
-        fc[s0] = 1;
-        for (std::size_t q = 0; q < cl.size(); ++q) {
-          ftree.radius(ff[cl[q]], static_cast<float>(P.fragment_merge * tol), nb);
-          for (const auto& [j, d2] : nb)
-            if (fc[j] < 0) {
-              fc[j] = 1;
-              cl.push_back(j);
-            }
-        }
-        for (auto& v : cl) v = frag[v];
-        merged += cl.size() >= small;
-        kept.push_back(std::move(cl));
-      }
-      spdlog::debug("detect: {} points in small clusters re-clustered at {:.3f} mm: {} region(s) "
-                    "of at least {} points",
-                    frag.size(), P.fragment_merge * tol * 1e3, merged, small);
-    }
-    clusters = std::move(kept);
-    // Small clusters that rise off the casting (single scan lines along a fin's root, or across
-    // its outer part where a wall hid the rest from every view) join the region they reach
-    // through each other within fragment_merge × tol: without them the root there has no
-    // boundary points and the grinding line breaks off. A breadth-first search from the
-    // regions (≥ small points) hands each reached cluster to the region it was reached from.
-    std::vector<char> cand_cl(clusters.size(), 0);
-    std::vector<std::uint32_t> cp;  // points of the candidate clusters (indices into live)
-    std::vector<std::size_t> ck;    // their cluster
-    for (std::size_t k = 0; k < clusters.size(); ++k) {
-      const auto& cl = clusters[k];
-      if (cl.size() >= small || cl.size() < 5) continue;
-      bool rises = false;
-      for (auto v : cl) rises = rises || dist[cand[live[v]]] > rise;
-      if (!rises) continue;
-      cand_cl[k] = 1;
-      for (auto v : cl) {
-        cp.push_back(v);
-        ck.push_back(k);
-      }
-    }
-    if (!cp.empty()) {
-      std::vector<Eigen::Vector3f> cfp(cp.size());
-      for (std::size_t i = 0; i < cp.size(); ++i) cfp[i] = lf[cp[i]];
-      detail::KdTree ctree(cfp);
-      std::vector<std::pair<std::uint32_t, float>> nb;
-      std::vector<std::size_t> owner(clusters.size(), clusters.size());
-      std::vector<Plane> plane(clusters.size());
-      std::deque<std::size_t> queue;
-      for (std::size_t k = 0; k < clusters.size(); ++k)
-        if (clusters[k].size() >= small) {
-          owner[k] = k;
-          queue.push_back(k);
-          std::vector<Vec3> pts;
-          for (auto v : clusters[k]) pts.push_back(pc[cand[live[v]]]);
-          plane[k] = fit_plane(pts);
-        }
-      // Only clusters in the region's fin plane join it (within the thickest flash, 1.5 mm):
-      // clutter off the part (a fixture's edge) does not.
-      const auto in_plane = [&](std::size_t c, const Plane& pl) {
-        for (auto v : clusters[c])
-          if (std::abs(pl.dist(pc[cand[live[v]]])) > 1.5e-3) return false;
-        return true;
-      };
-      while (!queue.empty()) {
-        const std::size_t k = queue.front();
-        queue.pop_front();
-        const Plane& pl = plane[owner[k]];
-        for (auto v : clusters[k]) {
-          ctree.radius(lf[v], static_cast<float>(P.fragment_merge * tol), nb);
-          for (const auto& [j, d2] : nb) {
-            const std::size_t c = ck[j];
-            if (owner[c] < clusters.size() || !in_plane(c, pl)) continue;
-            owner[c] = owner[k];
-            queue.push_back(c);
-          }
-        }
-      }
-      std::size_t joined = 0;
-      for (std::size_t k = 0; k < clusters.size(); ++k) {
-        if (!cand_cl[k] || owner[k] >= clusters.size()) continue;
-        auto& to = clusters[owner[k]];
-        to.insert(to.end(), clusters[k].begin(), clusters[k].end());
-        joined += clusters[k].size();
-        clusters[k].clear();
-      }
-      if (joined > 0)
-        spdlog::debug("detect: {} points of small clusters joined the regions they reach", joined);
-    }
-  }
-
-  const double band = P.inner_band > 0 ? P.inner_band : 1.5 * spacing;
-  const double alpha = P.alpha > 0 ? P.alpha : 1.5 * spacing;
-  const double gap = P.gap > 0 ? P.gap : std::max(4 * P.path_voxel, 4 * spacing);
-  const double inner_limit = res.threshold + band;
-  const double hidden_limit = std::max(inner_limit, res.threshold + P.hidden_root_band);
-  // A snapped edge point this close to a seen root point adds nothing.
-  const double hidden_cover = std::max(1e-3, 3 * spacing);
-
-  // Per-region data kept between the passes below.
-  struct RegionWork {
-    std::vector<Vec3> inner, inner_n;  // snapped inner-boundary points and CAD normals
-    Vec3 w = Vec3::UnitZ();            // height direction along the wall
-    double top = 0;                    // height of the visible face at the root
-    double mid = 0;                    // height of the mid-plane
-    bool resolved = false;             // mid-plane seen at the fin's edge
-    bool shift = false;
-  };
-  std::vector<RegionWork> work;
-  for (auto& cl : clusters) {
-    if (cl.size() < static_cast<std::size_t>(P.min_region_points)) continue;
-    std::sort(cl.begin(), cl.end());
-    std::vector<Vec3> pts;
-    pts.reserve(cl.size());
-    std::size_t touching = 0;
-    for (auto s : cl) {
-      const auto k = cand[live[s]];
-      pts.push_back(pc[k]);
-      touching += dist[k] < inner_limit;
-    }
-    // A flash grows out of the casting: a cluster that never comes near the surface is
-    // something else (fixture, robot, stray points).
-    if (touching < 3) {
-      spdlog::debug("detect: cluster of {} points never near the CAD: dropped", cl.size());
-      continue;
-    }
-    // Heights: the distances were searched only up to `far`; a flash region's own points get
-    // their full distance to the CAD (fins stand up to centimetres off the surface).
-    std::vector<double> height(cl.size());
-    double hmax = 0;
-    for (std::size_t i = 0; i < cl.size(); ++i) {
-      const double d = dist[cand[live[cl[i]]]];
-      height[i] = d < far ? d : cad_C.closest(pts[i]).distance;
-      hmax = std::max(hmax, height[i]);
-    }
-    // Fins are at most 1.5 mm thick: a fin's points lie within 1.5 mm of its plane.
-    std::vector<bool> touch(cl.size());
-    for (std::size_t i = 0; i < cl.size(); ++i) touch[i] = dist[cand[live[cl[i]]]] < inner_limit;
-    bool consensus = false;
-    const Plane fin = fit_fin_plane(pts, touch, 1.5e-3, &consensus);
-    // Where the consensus plane won, the points off it by more than the band and the scanner's
-    // noise are not the fin: a fixture's top (taken for the fin's outer edge, it put 6115's
-    // mid-plane 7 mm above the root) or the face of a clamp beside the fin's tip, 2 mm under
-    // its plane (taken for the fin's lower edge, it put default 5013's 1 mm below).
-    if (consensus) {
-      const double off = 1.5e-3 + 3 * res.noise_sigma;
-      std::size_t k = 0;
-      hmax = 0;
-      touching = 0;
-      for (std::size_t i = 0; i < cl.size(); ++i) {
-        if (std::abs(fin.dist(pts[i])) > off) continue;
-        cl[k] = cl[i];
-        pts[k] = pts[i];
-        height[k] = height[i];
-        hmax = std::max(hmax, height[k]);
-        touching += touch[i];
-        ++k;
-      }
-      if (k < cl.size())
-        spdlog::debug("detect: {} of a region's {} points lie off its fin plane: dropped", cl.size() - k, cl.size());
-      cl.resize(k);
-      pts.resize(k);
-      height.resize(k);
-    }
-    FlashRegion reg;
-    reg.points.reserve(cl.size());
-    for (auto s : cl) reg.points.push_back(crop[cand[live[s]]]);
-    reg.centroid_C = fin.c;
-    // The fin normal faces the scanner (the origin of {M}).
-    reg.normal_C = fin.n;
-    if (reg.normal_C.dot(X_CM.translation() - reg.centroid_C) < 0) reg.normal_C = -reg.normal_C;
-    const Vec3 e1 = fin.axes.col(2), e2 = fin.axes.col(1);
-    double u0 = 1e300, u1 = -1e300, v0 = 1e300, v1 = -1e300;
-    std::vector<Eigen::Vector2d> uv(pts.size());
-    for (std::size_t i = 0; i < pts.size(); ++i) {
-      uv[i] = Eigen::Vector2d(e1.dot(pts[i] - reg.centroid_C), e2.dot(pts[i] - reg.centroid_C));
-      u0 = std::min(u0, uv[i].x());
-      u1 = std::max(u1, uv[i].x());
-      v0 = std::min(v0, uv[i].y());
-      v1 = std::max(v1, uv[i].y());
-    }
-    reg.extent_major = u1 - u0;
-    reg.extent_minor = v1 - v0;
-    reg.max_height = hmax;
-
-    // Alpha-shape boundary. Only the points near the casting can be on the inner boundary,
-    // so the rolling circle is tried there (the outer boundary is not needed for the path).
-    // Points up to hidden_limit off the CAD are tried too: where the root itself is hidden
-    // from every view (a wall above the fin blocks the triangulation camera), the fin's edge
-    // nearest to the casting stands for it.
-    std::vector<bool> test(pts.size());
-    for (std::size_t i = 0; i < pts.size(); ++i) test[i] = height[i] < hidden_limit;
-    const auto bnd = alpha_boundary(uv, alpha, test);
-    std::vector<Vec3> inner;
-    std::vector<Vec3> inner_n;
-    std::vector<std::size_t> hidden;  // boundary points beyond the inner band
-    // A root lies on a wall the fin stands out of: a snap onto a face parallel to the fin
-    // (within 15°) is the face the fin lies on or runs along, not its root (30° had dropped every
-    // root point of a fin high on a flat dome, its wall 25-30° off the fin plane: cover 9141).
-    const auto on_wall = [&](int t) {
-      return std::abs(cad.triangle_normal(static_cast<std::size_t>(t)).dot(reg.normal_C)) <
-             std::cos(M_PI / 12);
-    };
-    // A root has no fin between it and the casting: a boundary point with region points
-    // further towards the wall (within the fin plane, along the wall normal's part in it) is
-    // the fin's outer edge or its end face, low enough to pass for the root where the fin
-    // tapers. Snapped onto a sloped wall such points land down the slope beside the root
-    // (cover 9003, 9012: a second row 1-2 mm off the root along a tapering end; the grinding
-    // line ran out along one row and back along the other and turned 2-5 mm short of the end).
-    std::vector<Eigen::Vector3f> uvf(pts.size());
-    for (std::size_t i = 0; i < pts.size(); ++i)
-      uvf[i] = Eigen::Vector3f(static_cast<float>(uv[i].x()), static_cast<float>(uv[i].y()), 0.0f);
-    const detail::KdTree uv_tree(uvf);
-    const auto fin_toward_wall = [&](std::size_t i, int t) {
-      const Vec3 nt = cad.triangle_normal(static_cast<std::size_t>(t));
-      const Vec3 in = -(nt - nt.dot(reg.normal_C) * reg.normal_C);
-      Eigen::Vector2d d(e1.dot(in), e2.dot(in));
-      if (d.norm() < 0.1) return false;
-      // A corridor from alpha to hidden_limit towards the wall, alpha to either side.
-      return points_in_corridor(uv, uv_tree, uv[i], d.normalized(), alpha,
-                                std::max(2 * alpha, hidden_limit), alpha) >= 3;
-    };
-    for (std::size_t i = 0; i < pts.size(); ++i) {
-      if (!bnd[i]) continue;
-      ++reg.boundary_points;
-      if (height[i] >= inner_limit) {
-        hidden.push_back(i);
-        continue;
-      }
-      // Snap onto the CAD surface: the path must not carry the scanner noise.
-      const auto cp = cad_C.closest(pts[i], inner_limit * 1.5);
-      if (cp.triangle < 0 || !on_wall(cp.triangle) || fin_toward_wall(i, cp.triangle)) continue;
-      ++reg.inner_points;
-      inner.push_back(cp.point);
-      inner_n.push_back(cad.triangle_normal(static_cast<std::size_t>(cp.triangle)));
-    }
-    // Hidden stretches of root: boundary points of the wider band whose snap lands away from
-    // every root point seen (so they fill gaps and never compete with the seen root).
-    {
-      const std::size_t seen = inner.size();
-      const double r2 = hidden_cover * hidden_cover;
-      for (std::size_t i : hidden) {
-        const auto cp = cad_C.closest(pts[i], hidden_limit * 1.5);
-        if (cp.triangle < 0 || !on_wall(cp.triangle) || fin_toward_wall(i, cp.triangle)) continue;
-        bool covered = false;
-        for (std::size_t j = 0; j < seen && !covered; ++j)
-          covered = (inner[j] - cp.point).squaredNorm() < r2;
-        if (covered) continue;
-        ++reg.inner_points;
-        inner.push_back(cp.point);
-        inner_n.push_back(cad.triangle_normal(static_cast<std::size_t>(cp.triangle)));
-      }
-    }
-    spdlog::debug("detect: region of {} points, {} near the CAD, {} boundary, {} inner, fin normal ({:.3f}, {:.3f}, {:.3f})",
-                  cl.size(), touching, reg.boundary_points, inner.size(), reg.normal_C.x(),
-                  reg.normal_C.y(), reg.normal_C.z());
-    if (inner.size() < 3) {
-      // Flash (it stands off the casting and touches it) whose root is nowhere on a wall seen:
-      // labelled, but it gives no grinding line.
-      for (auto idx : reg.points) res.labels[idx] = kDetectFlash;
-      continue;
-    }
-
-    // The scanner sees the fin's upper face; the root lies on its mid-plane. Where the fin's
-    // edge (its outer half) shows its thickness, the mid-height there, measured along the
-    // wall, is the fin's mid-plane (a symmetric fin, the parting plane across the wall).
-    // Height direction: the fin normal made perpendicular to the mean wall normal (walls
-    // around a loop average out: then the fin normal itself).
-    Vec3 nw = Vec3::Zero();
-    double slope = 0;  // mean |sin| of the walls' slope towards the fin normal
-    for (const auto& v : inner_n) {
-      nw += v;
-      slope += std::abs(v.dot(reg.normal_C)) / static_cast<double>(inner_n.size());
-    }
-    RegionWork wk;
-    wk.w = reg.normal_C;
-    // On walls sloping towards the fin (a dome: more than 10° on average) "along the wall" is
-    // no one direction: heights go along the fin normal, and the root onto the CAD's section
-    // by the mid-plane (below). Only when the fitted normal can be trusted: the fin spreads
-    // over its plane ten times more than across it (a narrow band, a few millimetres of a
-    // hole's ring, can fit a plane tilted by tens of degrees, and the walls then look sloped),
-    // or the wall is flat (see flat_sloped_wall_normal).
-    const bool tilted_to_fin = slope >= std::sin(10 * M_PI / 180);
-    bool sloped = tilted_to_fin && fin.spread(1) > 100 * fin.spread(0);
-    if (tilted_to_fin && !sloped) {
-      std::vector<Vec3> outer;
-      for (std::size_t i = 0; i < pts.size(); ++i)
-        if (height[i] > 0.5 * hmax) outer.push_back(pts[i]);
-      if (const auto n_top = flat_sloped_wall_normal(inner_n, outer, reg.normal_C, res.noise_sigma)) {
-        sloped = true;
-        wk.w = *n_top;
-      }
-    }
-    if (!sloped && nw.norm() > 0.5 * static_cast<double>(inner_n.size())) {
-      nw.normalize();
-      const Vec3 w = reg.normal_C - reg.normal_C.dot(nw) * nw;
-      if (w.norm() > 0.5) wk.w = w.normalized();
-    }
-    std::vector<double> h_outer, h_inner;
-    for (std::size_t i = 0; i < pts.size(); ++i)
-      if (height[i] > 0.5 * hmax) h_outer.push_back(wk.w.dot(pts[i]));
-    for (const auto& p : inner) h_inner.push_back(wk.w.dot(p));
-    wk.top = percentile(h_inner, 0.5);
-    if (h_outer.size() >= 20) {
-      // The top face is the bulk (its median is its height); the lowest edge points mark the
-      // fin's bottom.
-      const double top = percentile(h_outer, 0.5);
-      const double bottom = percentile(h_outer, 0.01);
-      reg.thickness = std::max(0.0, top - bottom);
-      if (reg.thickness > 3 * res.noise_sigma) {
-        wk.resolved = true;
-        wk.mid = 0.5 * (top + bottom);
-      }
-    }
-    wk.inner = std::move(inner);
-    wk.inner_n = std::move(inner_n);
-    for (auto idx : reg.points) res.labels[idx] = kDetectFlash;
-    res.regions.push_back(std::move(reg));
-    work.push_back(std::move(wk));
-  }
-
-  // One parting plane: a fin whose edge is too thin to resolve takes the mid-plane of the
-  // resolved fins parallel to it and within 2 mm of its face (castings part along one plane).
+// One parting plane: a fin whose edge is too thin to resolve takes the mid-plane of the
+// resolved fins parallel to it and within 2 mm of its face (castings part along one plane).
+void share_parting_plane(std::vector<RegionWork>& work, std::vector<FlashRegion>& regions,
+                         bool mid_plane) {
   for (std::size_t r = 0; r < work.size(); ++r) {
     auto& wk = work[r];
-    if (!P.mid_plane) {
+    if (!mid_plane) {
       wk.shift = false;
       continue;
     }
@@ -1541,165 +1546,255 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
     if (!mids.empty()) {
       wk.mid = percentile(mids, 0.5);
       wk.shift = wk.mid < wk.top;  // never above the visible face
-      res.regions[r].thickness = 2 * (wk.top - wk.mid);
+      regions[r].thickness = 2 * (wk.top - wk.mid);
     }
+  }
+}
+
+// The root points at the mid-plane's height, thinned by the (improved) voxel grid: one
+// original point per voxel, the one nearest its centroid; then the band a few points wide is
+// pulled onto the line fitted to each point's neighbours (twice) so it becomes one curve before
+// it is ordered, and thinned again.
+std::vector<Vec3> thin_root_band(const RegionWork& wk, const DetectionParams& P, double spacing,
+                                 DetectionResult& res) {
+  PointCloud ic;
+  for (std::size_t i = 0; i < wk.inner.size(); ++i) {
+    ic.points.push_back(wk.at_mid(wk.inner[i]).cast<float>());
+    ic.normals.push_back(wk.inner_n[i].cast<float>());
+  }
+  const auto tv = Clock::now();
+  const PointCloud thin = P.path_voxel_nearest ? voxel_downsample_nearest(ic, P.path_voxel)
+                                               : voxel_downsample(ic, P.path_voxel);
+  res.path_voxel_time_s += std::chrono::duration<double>(Clock::now() - tv).count();
+  res.path_points_before += ic.size();
+  res.path_points_after += thin.size();
+  std::vector<Vec3> tp(thin.size());
+  for (std::size_t i = 0; i < thin.size(); ++i) tp[i] = thin.points[i].cast<double>();
+  const double reach = std::max(2 * P.path_voxel, 2 * spacing);
+  for (int pass = 0; pass < 2 && tp.size() > 3; ++pass) {
+    std::vector<Eigen::Vector3f> tf(tp.size());
+    for (std::size_t i = 0; i < tp.size(); ++i) tf[i] = tp[i].cast<float>();
+    const detail::KdTree tt(tf);
+    std::vector<Vec3> moved(tp.size());
+    std::vector<std::pair<std::uint32_t, float>> nb;
+    for (std::size_t i = 0; i < tp.size(); ++i) {
+      tt.radius(tf[i], static_cast<float>(reach), nb);
+      if (nb.size() < 3) {
+        moved[i] = tp[i];
+        continue;
+      }
+      std::vector<Vec3> loc;
+      for (const auto& e : nb) loc.push_back(tp[e.first]);
+      const Plane local = fit_plane(loc);
+      const Vec3 dir = local.axes.col(2);
+      moved[i] = local.c + dir.dot(tp[i] - local.c) * dir;
+    }
+    tp = std::move(moved);
+  }
+  PointCloud again;
+  for (const auto& q : tp) again.points.push_back(q.cast<float>());
+  const PointCloud t2 = P.path_voxel_nearest ? voxel_downsample_nearest(again, P.path_voxel)
+                                             : voxel_downsample(again, P.path_voxel);
+  tp.resize(t2.size());
+  for (std::size_t i = 0; i < t2.size(); ++i) tp[i] = t2.points[i].cast<double>();
+  return tp;
+}
+
+// A fin stands out of its wall, so its normal is square to the wall normals along the
+// root: where the wall curves (the normals span a plane: a hole, a rounded corner) it is
+// that plane's normal, else the fitted fin normal less its part along the wall normal. A
+// plane fitted to a few points of a partly seen ring can be tens of degrees off. Not on a
+// wall sloping round the fin normal (a dome, a cone: the normals lie on a cone whose axis
+// is the fin normal, and the fin leaves the wall at its slope): where the fitted plane is
+// within 5° of the axis the normals turn about, it stands (cover 9015: the dome's parting
+// plane, fitted within 0.03°, had been turned 57° off, and the burr's shank with it; a
+// 2 mm fragment on a vertical wall, fitted 20° off, is still squared: housing 7016).
+void square_fin_normal_to_wall(FlashPath& path, const Vec3& fitted_n) {
+  Mat3 M = Mat3::Zero();
+  Vec3 mean = Vec3::Zero();
+  for (const auto& nrm : path.normals_C) {
+    M += nrm * nrm.transpose();
+    mean += nrm;
+  }
+  M /= static_cast<double>(path.normals_C.size());
+  mean /= static_cast<double>(path.normals_C.size());
+  const Eigen::SelfAdjointEigenSolver<Mat3> es(M);  // ascending eigenvalues
+  const Vec3 along_wall = fitted_n - fitted_n.dot(es.eigenvectors().col(2)) * es.eigenvectors().col(2);
+  // Curved wall: normals spread in a plane (second eigenvalue), none out of it (smallest),
+  // and that plane's normal within 45° of the fitted fin normal; else the straight case.
+  const Vec3 e0 = es.eigenvectors().col(0);
+  const bool curved = es.eigenvalues()(1) > 0.05 && es.eigenvalues()(0) < 0.02 &&
+                      std::abs(e0.dot(fitted_n)) > std::cos(M_PI / 4);
+  // The axis the wall normals turn about: the direction in which they do not vary (their
+  // covariance, M less the mean's outer product).
+  const Eigen::SelfAdjointEigenSolver<Mat3> ec(Mat3(M - mean * mean.transpose()));
+  const bool sloped = std::abs(fitted_n.dot(es.eigenvectors().col(2))) > std::sin(M_PI / 18) &&
+                      ec.eigenvalues()(1) > 2e-4 &&
+                      std::abs(ec.eigenvectors().col(0).dot(fitted_n)) > std::cos(M_PI / 36);
+  Vec3 fn = curved ? e0 : (sloped ? fitted_n : along_wall);
+  if (fn.norm() > 1e-6) {
+    fn.normalize();
+    if (fn.dot(fitted_n) < 0) fn = -fn;
+    path.fin_normal_C = fn;
+  }
+}
+
+// A region's grinding lines: its thinned root ordered into polylines, each smoothed by a
+// moving average along the curve (wrapping for loops), put back onto the surface and the
+// mid-plane, with the fin normal squared to its walls.
+void trace_region(int r, const RegionWork& wk, const FlashRegion& reg, const MeshBvh& cad_C,
+                  const DetectionParams& P, const Scales& s, DetectionResult& res) {
+  const TriangleMesh& cad = cad_C.mesh();
+  // With the mid-plane known, the root goes onto the CAD's section by it: moving a wall point
+  // along the height direction keeps it on the wall only where the wall is parallel to that
+  // direction; on a sloped or domed wall it would stand off the steel or in it.
+  const double section_reach = 3e-3;
+  std::optional<PlaneSection> section;
+  if (wk.shift && !wk.inner.empty()) {
+    Vec3 box_lo = wk.inner.front(), box_hi = box_lo;
+    for (const auto& q : wk.inner) {
+      box_lo = box_lo.cwiseMin(q);
+      box_hi = box_hi.cwiseMax(q);
+    }
+    const Vec3 margin = Vec3::Constant(2 * section_reach);
+    section.emplace(cad, wk.w, wk.mid, box_lo - margin, box_hi + margin);
+  }
+  const std::vector<Vec3> tp = thin_root_band(wk, P, s.spacing, res);
+  for (auto& pl : order_polylines(tp, s.gap)) {
+    double len = 0;
+    for (std::size_t i = 1; i < pl.points.size(); ++i) len += (pl.points[i] - pl.points[i - 1]).norm();
+    if (pl.points.size() < 3 || len < P.min_path_length) continue;
+    FlashPath path;
+    path.region = r;
+    path.closed = pl.closed;
+    path.fin_normal_C = reg.normal_C;
+    path.fin_height = reg.max_height;
+    const int N = static_cast<int>(pl.points.size());
+    for (int i = 0; i < N; ++i) {
+      Vec3 acc = Vec3::Zero();
+      int cnt = 0;
+      for (int k = -P.smoothing; k <= P.smoothing; ++k) {
+        int j = i + k;
+        if (path.closed) j = (j % N + N) % N;
+        else if (j < 0 || j >= N) continue;
+        acc += pl.points[static_cast<std::size_t>(j)];
+        ++cnt;
+      }
+      const auto cp = cad_C.closest(acc / cnt);
+      Vec3 root = wk.at_mid(cp.point), normal = cad.triangle_normal(static_cast<std::size_t>(std::max(0, cp.triangle)));
+      Vec3 q, nq;
+      if (section && section->closest(root, section_reach, q, nq)) {
+        root = q;
+        normal = nq;
+      }
+      path.points_C.push_back(root);
+      path.normals_C.push_back(normal);
+    }
+    if (const int k = repair_fin_parallel_normals(path, reg.normal_C); k > 0)
+      spdlog::debug("detect: region {}: {} root normal(s) lay on a face parallel to the fin", r, k);
+    square_fin_normal_to_wall(path, reg.normal_C);
+    orient_path(path);
+    // Extent, not travel: a short zig-zag of boundary points is not a grinding line.
+    double extent = 0;
+    for (const auto& q : path.points_C) extent = std::max(extent, (q - path.points_C.front()).norm());
+    if (extent < P.min_path_length) continue;
+    if (P.close_holes) {
+      const int added = close_hole_arc(path, cad_C, path.fin_normal_C, std::max(P.path_voxel, s.spacing),
+                                       std::max(0.15e-3, 3 * res.noise_sigma));
+      if (added > 0)
+        spdlog::debug("detect: region {}: hole arc closed along its circle ({} points added)", r,
+                      added);
+    }
+    res.paths.push_back(std::move(path));
+  }
+}
+
+}  // namespace
+
+DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, const Pose& X_CM,
+                             const DetectionParams& params) {
+  const auto t0 = Clock::now();
+  const auto& P = params;
+  check_params(P);
+  const TriangleMesh& cad = cad_C.mesh();
+  check_inputs(scan_M, cad, X_CM);
+  DetectionResult res;
+  res.labels.assign(scan_M.size(), kDetectIgnored);
+  const auto done = [&](std::string message) {
+    res.ran = true;
+    res.message = std::move(message);
+    res.time_s = std::chrono::duration<double>(Clock::now() - t0).count();
+    return res;
+  };
+
+  // Points off the CAD surface by more than the noise threshold are flash candidates.
+  const CroppedScan crop = crop_to_cad(scan_M, cad, X_CM, P.crop_margin);
+  res.cropped_points = crop.index.size();
+  const std::vector<Vec3>& pc = crop.points_C;
+  Scales s;
+  s.far = 2 * P.max_threshold;
+  const std::vector<double> dist = distances_to_cad(pc, cad_C, s.far);
+  res.noise_sigma = scanner_noise(dist, P);
+  res.threshold = std::clamp(P.threshold_sigmas * res.noise_sigma, P.min_threshold, P.max_threshold);
+  std::vector<std::uint32_t> cand;  // indices into crop
+  for (std::size_t k = 0; k < dist.size(); ++k) {
+    if (dist[k] > res.threshold) cand.push_back(static_cast<std::uint32_t>(k));
+    else res.labels[crop.index[k]] = kDetectBody;
+  }
+  res.candidate_points = cand.size();
+  if (cand.size() < static_cast<std::size_t>(P.min_region_points))
+    return done("nothing to grind: no point lies off the CAD surface");
+
+  // Scales from the candidates' spacing; support planes (table, fixture faces) removed.
+  std::vector<Eigen::Vector3f> cf(cand.size());
+  for (std::size_t c = 0; c < cand.size(); ++c) cf[c] = pc[cand[c]].cast<float>();
+  const detail::KdTree cand_tree(cf);
+  candidate_spacing(cf, cand_tree, res);
+  s.spacing = res.spacing_across;
+  const std::vector<bool> alive =
+      support_plane_mask(pc, cand, cand_tree, cf, dist, cad, P, res.support_points);
+  spdlog::debug("detect: {} cropped, {} candidates, threshold {:.4f} mm, spacing {:.3f}/{:.3f} mm, {} on supports",
+                pc.size(), cand.size(), res.threshold * 1e3, res.spacing * 1e3, s.spacing * 1e3,
+                res.support_points);
+  const double band = P.inner_band > 0 ? P.inner_band : 1.5 * s.spacing;
+  s.tol = P.cluster_tolerance > 0 ? P.cluster_tolerance : 3 * s.spacing;
+  s.alpha = P.alpha > 0 ? P.alpha : 1.5 * s.spacing;
+  s.gap = P.gap > 0 ? P.gap : std::max(4 * P.path_voxel, 4 * s.spacing);
+  s.inner_limit = res.threshold + band;
+  s.hidden_limit = std::max(s.inner_limit, res.threshold + P.hidden_root_band);
+  s.hidden_cover = std::max(1e-3, 3 * s.spacing);
+
+  // Regions: Euclidean clusters of the surviving candidates, with the fragments of fins seen
+  // obliquely gathered.
+  Live live;
+  for (std::size_t c = 0; c < cand.size(); ++c)
+    if (alive[c]) {
+      live.k.push_back(cand[c]);
+      live.pf.push_back(cf[c]);
+    }
+  const detail::KdTree ltree(live.pf);
+  auto clusters = detail::euclidean_clusters(live.pf, ltree, static_cast<float>(s.tol));
+  if (P.fragment_merge > 1) {
+    const double reach = res.threshold + band;
+    const double rise = std::max(0.5e-3, 4 * res.threshold);
+    recluster_fragments(clusters, live, dist, reach, rise, s.tol, P);
+    join_rising_clusters(clusters, live, dist, pc, rise, s.tol, P);
   }
 
-  for (std::size_t r = 0; r < work.size(); ++r) {
-    const auto& wk = work[r];
-    const auto& reg = res.regions[r];
-    auto to_mid = [&](Vec3 p) {
-      if (wk.shift) p += (wk.mid - wk.w.dot(p)) * wk.w;
-      return p;
-    };
-    // With the mid-plane known, the root goes onto the CAD's section by it: moving a wall point
-    // along the height direction keeps it on the wall only where the wall is parallel to that
-    // direction; on a sloped or domed wall it would stand off the steel or in it.
-    const double section_reach = 3e-3;
-    std::optional<PlaneSection> section;
-    if (wk.shift && !wk.inner.empty()) {
-      Vec3 box_lo = wk.inner.front(), box_hi = box_lo;
-      for (const auto& q : wk.inner) {
-        box_lo = box_lo.cwiseMin(q);
-        box_hi = box_hi.cwiseMax(q);
-      }
-      const Vec3 margin = Vec3::Constant(2 * section_reach);
-      section.emplace(cad, wk.w, wk.mid, box_lo - margin, box_hi + margin);
-    }
-    PointCloud ic;
-    for (std::size_t i = 0; i < wk.inner.size(); ++i) {
-      ic.points.push_back(to_mid(wk.inner[i]).cast<float>());
-      ic.normals.push_back(wk.inner_n[i].cast<float>());
-    }
-    // Improved voxel grid: one original point per voxel, the one nearest its centroid.
-    const auto tv = Clock::now();
-    const PointCloud thin = P.path_voxel_nearest ? voxel_downsample_nearest(ic, P.path_voxel)
-                                                 : voxel_downsample(ic, P.path_voxel);
-    res.path_voxel_time_s += std::chrono::duration<double>(Clock::now() - tv).count();
-    res.path_points_before += ic.size();
-    res.path_points_after += thin.size();
-    std::vector<Vec3> tp(thin.size());
-    for (std::size_t i = 0; i < thin.size(); ++i) tp[i] = thin.points[i].cast<double>();
-    // The boundary is a band a few points wide: pull each point onto the line fitted to its
-    // neighbours (twice) so the band becomes one curve before it is ordered.
-    const double reach = std::max(2 * P.path_voxel, 2 * spacing);
-    for (int pass = 0; pass < 2 && tp.size() > 3; ++pass) {
-      std::vector<Eigen::Vector3f> tf(tp.size());
-      for (std::size_t i = 0; i < tp.size(); ++i) tf[i] = tp[i].cast<float>();
-      detail::KdTree tt(tf);
-      std::vector<Vec3> moved(tp.size());
-      std::vector<std::pair<std::uint32_t, float>> nb;
-      for (std::size_t i = 0; i < tp.size(); ++i) {
-        tt.radius(tf[i], static_cast<float>(reach), nb);
-        if (nb.size() < 3) {
-          moved[i] = tp[i];
-          continue;
-        }
-        std::vector<Vec3> loc;
-        for (const auto& e : nb) loc.push_back(tp[e.first]);
-        const Plane local = fit_plane(loc);
-        const Vec3 dir = local.axes.col(2);
-        moved[i] = local.c + dir.dot(tp[i] - local.c) * dir;
-      }
-      tp = std::move(moved);
-    }
-    {
-      PointCloud again;
-      for (const auto& q : tp) again.points.push_back(q.cast<float>());
-      const PointCloud t2 = P.path_voxel_nearest ? voxel_downsample_nearest(again, P.path_voxel)
-                                                 : voxel_downsample(again, P.path_voxel);
-      tp.resize(t2.size());
-      for (std::size_t i = 0; i < t2.size(); ++i) tp[i] = t2.points[i].cast<double>();
-    }
-    for (auto& pl : order_polylines(tp, gap)) {
-      double len = 0;
-      for (std::size_t i = 1; i < pl.points.size(); ++i) len += (pl.points[i] - pl.points[i - 1]).norm();
-      if (pl.points.size() < 3 || len < P.min_path_length) continue;
-      FlashPath path;
-      path.region = static_cast<int>(r);
-      path.closed = pl.closed;
-      path.fin_normal_C = reg.normal_C;
-      path.fin_height = reg.max_height;
-      // Moving average along the curve (wrapping for loops), then back onto the surface and
-      // back to the mid height.
-      const int N = static_cast<int>(pl.points.size());
-      for (int i = 0; i < N; ++i) {
-        Vec3 acc = Vec3::Zero();
-        int cnt = 0;
-        for (int k = -P.smoothing; k <= P.smoothing; ++k) {
-          int j = i + k;
-          if (path.closed) j = (j % N + N) % N;
-          else if (j < 0 || j >= N) continue;
-          acc += pl.points[static_cast<std::size_t>(j)];
-          ++cnt;
-        }
-        const auto cp = cad_C.closest(acc / cnt);
-        Vec3 root = to_mid(cp.point), normal = cad.triangle_normal(static_cast<std::size_t>(std::max(0, cp.triangle)));
-        Vec3 q, nq;
-        if (section && section->closest(root, section_reach, q, nq)) {
-          root = q;
-          normal = nq;
-        }
-        path.points_C.push_back(root);
-        path.normals_C.push_back(normal);
-      }
-      if (const int k = repair_fin_parallel_normals(path, reg.normal_C); k > 0)
-        spdlog::debug("detect: region {}: {} root normal(s) lay on a face parallel to the fin", r, k);
-      // A fin stands out of its wall, so its normal is square to the wall normals along the
-      // root: where the wall curves (the normals span a plane: a hole, a rounded corner) it is
-      // that plane's normal, else the fitted fin normal less its part along the wall normal. A
-      // plane fitted to a few points of a partly seen ring can be tens of degrees off. Not on a
-      // wall sloping round the fin normal (a dome, a cone: the normals lie on a cone whose axis
-      // is the fin normal, and the fin leaves the wall at its slope): where the fitted plane is
-      // within 5° of the axis the normals turn about, it stands (cover 9015: the dome's parting
-      // plane, fitted within 0.03°, had been turned 57° off, and the burr's shank with it; a
-      // 2 mm fragment on a vertical wall, fitted 20° off, is still squared: housing 7016).
-      {
-        Mat3 M = Mat3::Zero();
-        Vec3 mean = Vec3::Zero();
-        for (const auto& nrm : path.normals_C) {
-          M += nrm * nrm.transpose();
-          mean += nrm;
-        }
-        M /= static_cast<double>(path.normals_C.size());
-        mean /= static_cast<double>(path.normals_C.size());
-        const Eigen::SelfAdjointEigenSolver<Mat3> es(M);  // ascending eigenvalues
-        const Vec3 along_wall = reg.normal_C - reg.normal_C.dot(es.eigenvectors().col(2)) *
-                                                   es.eigenvectors().col(2);
-        // Curved wall: normals spread in a plane (second eigenvalue), none out of it (smallest),
-        // and that plane's normal within 45° of the fitted fin normal; else the straight case.
-        const Vec3 e0 = es.eigenvectors().col(0);
-        const bool curved = es.eigenvalues()(1) > 0.05 && es.eigenvalues()(0) < 0.02 &&
-                            std::abs(e0.dot(reg.normal_C)) > std::cos(M_PI / 4);
-        // The axis the wall normals turn about: the direction in which they do not vary (their
-        // covariance, M less the mean's outer product).
-        const Eigen::SelfAdjointEigenSolver<Mat3> ec(Mat3(M - mean * mean.transpose()));
-        const bool sloped =
-            std::abs(reg.normal_C.dot(es.eigenvectors().col(2))) > std::sin(M_PI / 18) &&
-            ec.eigenvalues()(1) > 2e-4 &&
-            std::abs(ec.eigenvectors().col(0).dot(reg.normal_C)) > std::cos(M_PI / 36);
-        Vec3 fn = curved ? e0 : (sloped ? reg.normal_C : along_wall);
-        if (fn.norm() > 1e-6) {
-          fn.normalize();
-          if (fn.dot(reg.normal_C) < 0) fn = -fn;
-          path.fin_normal_C = fn;
-        }
-      }
-      orient_path(path);
-      // Extent, not travel: a short zig-zag of boundary points is not a grinding line.
-      double extent = 0;
-      for (const auto& q : path.points_C) extent = std::max(extent, (q - path.points_C.front()).norm());
-      if (extent < P.min_path_length) continue;
-      if (P.close_holes) {
-        const int added = close_hole_arc(path, cad_C, path.fin_normal_C, std::max(P.path_voxel, spacing),
-                                         std::max(0.15e-3, 3 * res.noise_sigma));
-        if (added > 0)
-          spdlog::debug("detect: region {}: hole arc closed along its circle ({} points added)", r,
-                        added);
-      }
-      res.paths.push_back(std::move(path));
-    }
+  // Each region's fin plane, root and mid-plane; one parting plane across them.
+  std::vector<RegionWork> work;
+  for (auto& cl : clusters) {
+    if (cl.size() < static_cast<std::size_t>(P.min_region_points)) continue;
+    auto region = analyse_region(cl, live, crop, dist, cad_C, X_CM, s, res);
+    if (!region) continue;
+    res.regions.push_back(std::move(region->first));
+    work.push_back(std::move(region->second));
   }
+  share_parting_plane(work, res.regions, P.mid_plane);
+
+  // Grinding lines, then the pieces of one ring or line joined.
+  for (std::size_t r = 0; r < work.size(); ++r)
+    trace_region(static_cast<int>(r), work[r], res.regions[r], cad_C, P, s, res);
   if (P.close_holes) {
     const int joined = merge_hole_arcs(res.paths, cad_C, std::max(P.path_voxel, res.spacing),
                                        std::max(0.15e-3, 3 * res.noise_sigma));
@@ -1710,15 +1805,10 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
     const int joined = join_continuing_paths(res.paths, std::max(2e-3, 3 * step), 4 * step);
     if (joined > 0) spdlog::debug("detect: {} path(s) joined to the paths they continue", joined);
   }
-  res.ran = true;
-  if (res.paths.empty()) res.message = "nothing to grind: no flash region found";
-  else {
-    std::ostringstream os;
-    os << res.regions.size() << " flash region(s), " << res.paths.size() << " path(s)";
-    res.message = os.str();
-  }
-  res.time_s = std::chrono::duration<double>(Clock::now() - t0).count();
-  return res;
+  if (res.paths.empty()) return done("nothing to grind: no flash region found");
+  std::ostringstream os;
+  os << res.regions.size() << " flash region(s), " << res.paths.size() << " path(s)";
+  return done(os.str());
 }
 
 }  // namespace flashtwin::perception

@@ -77,4 +77,29 @@ class KdTree {
   Index index_;
 };
 
+/// Euclidean clusters: region growing over the neighbours within `tol` of `points` (indexed by
+/// `tree`). Each cluster lists its points in the order it reached them, from its first point;
+/// the clusters come in the order of their first points.
+inline std::vector<std::vector<std::uint32_t>> euclidean_clusters(
+    const std::vector<Eigen::Vector3f>& points, const KdTree& tree, float tol) {
+  std::vector<char> taken(points.size(), 0);
+  std::vector<std::vector<std::uint32_t>> clusters;
+  std::vector<std::pair<std::uint32_t, float>> nb;
+  for (std::size_t s = 0; s < points.size(); ++s) {
+    if (taken[s]) continue;
+    std::vector<std::uint32_t> cl{static_cast<std::uint32_t>(s)};
+    taken[s] = 1;
+    for (std::size_t q = 0; q < cl.size(); ++q) {
+      tree.radius(points[cl[q]], tol, nb);
+      for (const auto& [j, d2] : nb)
+        if (!taken[j]) {
+          taken[j] = 1;
+          cl.push_back(j);
+        }
+    }
+    clusters.push_back(std::move(cl));
+  }
+  return clusters;
+}
+
 }  // namespace flashtwin::perception::detail

@@ -312,28 +312,15 @@ PointCloud remove_support_plane(const PointCloud& cloud, double distance, double
   if (kept.size() < 10) return kept;
   // Largest Euclidean cluster (region growing over radius neighbours).
   const KdTree tree(kept.points);
-  std::vector<int> label(kept.size(), -1);
-  std::vector<std::size_t> sizes;
-  std::vector<std::pair<std::uint32_t, float>> nb;
-  for (std::size_t s = 0; s < kept.size(); ++s) {
-    if (label[s] >= 0) continue;
-    const int id = static_cast<int>(sizes.size());
-    std::vector<std::size_t> queue{s};
-    label[s] = id;
-    for (std::size_t q = 0; q < queue.size(); ++q) {
-      tree.radius(kept.points[queue[q]], static_cast<float>(cluster_tolerance), nb);
-      for (const auto& [j, d] : nb)
-        if (label[j] < 0) {
-          label[j] = id;
-          queue.push_back(j);
-        }
-    }
-    sizes.push_back(queue.size());
-  }
-  const int biggest = static_cast<int>(std::max_element(sizes.begin(), sizes.end()) - sizes.begin());
+  const auto clusters = detail::euclidean_clusters(kept.points, tree, static_cast<float>(cluster_tolerance));
+  const auto biggest = std::max_element(clusters.begin(), clusters.end(), [](const auto& a, const auto& b) {
+    return a.size() < b.size();
+  });
+  std::vector<char> in_biggest(kept.size(), 0);
+  for (const auto j : *biggest) in_biggest[j] = 1;
   PointCloud out;
   for (std::size_t i = 0; i < kept.size(); ++i)
-    if (label[i] == biggest) {
+    if (in_biggest[i]) {
       out.points.push_back(kept.points[i]);
       if (has_n) out.normals.push_back(kept.normals[i]);
     }
