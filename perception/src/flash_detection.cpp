@@ -1671,9 +1671,12 @@ void trace_region(int r, const RegionWork& wk, const FlashRegion& reg, const Mes
     path.fin_height = reg.max_height;
     const int N = static_cast<int>(pl.points.size());
     for (int i = 0; i < N; ++i) {
+      // An open line's window narrows towards its ends, so they stay where the root ends (a
+      // one-sided window pulled them 1-2 mm back along the line: flash left at fin ends).
+      const int half = path.closed ? P.smoothing : std::min({P.smoothing, i, N - 1 - i});
       Vec3 acc = Vec3::Zero();
       int cnt = 0;
-      for (int k = -P.smoothing; k <= P.smoothing; ++k) {
+      for (int k = -half; k <= half; ++k) {
         int j = i + k;
         if (path.closed) j = (j % N + N) % N;
         else if (j < 0 || j >= N) continue;
@@ -1762,7 +1765,10 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
   s.gap = P.gap > 0 ? P.gap : std::max(4 * P.path_voxel, 4 * s.spacing);
   s.inner_limit = res.threshold + band;
   s.hidden_limit = std::max(s.inner_limit, res.threshold + P.hidden_root_band);
-  s.hidden_cover = std::max(1e-3, 3 * s.spacing);
+  // (At most half the gap that splits a line: a gap between seen root points, wide enough to
+  // split the line, has a hidden point in its middle. At 1 mm a fin's tapering end, its root
+  // seen every 1-2 mm, lost its last 2 mm.)
+  s.hidden_cover = std::min(std::max(1e-3, 3 * s.spacing), 0.5 * s.gap);
 
   // Regions: Euclidean clusters of the surviving candidates, with the fragments of fins seen
   // obliquely gathered.
