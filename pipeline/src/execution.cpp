@@ -109,6 +109,7 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
     // The burr this path was planned for (a rack burr after a tool change; same length).
     sim::ToolParams path_tool = tool;
     if (g.tool_radius > 0) path_tool.radius = g.tool_radius;
+    path_tool.radius += sc.faults.tool_radius_error;  // a drill: not the burr planned for
     const sim::ExecutionResult r =
         sim::execute_trajectory(*model, tr, &grid, path_tool, sc.execution.force, ep);
     ++executed;

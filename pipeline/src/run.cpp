@@ -376,6 +376,15 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   if (write) ensure_directory(dir.string());
   m["scenario"] = sc.name;
   m["seed"] = sc.seed;
+  if (sc.faults.any()) {
+    m["faults.part_offset_mm"] = sc.faults.part_offset_C.translation().norm() * 1e3;
+    m["faults.part_offset_deg"] = Eigen::AngleAxisd(sc.faults.part_offset_C.linear()).angle() * 180 / M_PI;
+    m["faults.tool_radius_error_mm"] = sc.faults.tool_radius_error * 1e3;
+    spdlog::warn("fault drill: the part stands {:.2f} mm / {:.2f} deg from where it is scanned, the "
+                 "burr's radius is {:+.2f} mm off the plan's",
+                 m["faults.part_offset_mm"].get<double>(), m["faults.part_offset_deg"].get<double>(),
+                 sc.faults.tool_radius_error * 1e3);
+  }
 
   // --- Cell and scan (the simulator).
   progress(opt, "cell and scan", 0.0);
@@ -490,7 +499,12 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   if (!out.refused && !det.paths.empty()) {
     progress(opt, "planning", 0.5);
     const auto t_plan = Clock::now();
-    const Pose X_BC_est = setup.spec.X_WB.inverse() * setup.spec.X_WM * X_CM_est.inverse();
+    // A part-offset drill (faults.part_offset, Δ in {C}): the part stands at X_BC·Δ when the
+    // robot grinds it while the plan is made for the pose perception gave. The simulated part
+    // stays where it was scanned, so the robot runs the plan for X_BC_est·Δ⁻¹ instead: the same
+    // motion of the burr relative to the part (the arm's own joints differ by the offset).
+    const Pose X_BC_est = setup.spec.X_WB.inverse() * setup.spec.X_WM * X_CM_est.inverse() *
+                          sc.faults.part_offset_C.inverse();
     double vmax = 0, amax = 0, manip = 1e300, total_time = 0, length = 0;
     int planned = 0, failed = 0, skipped = 0, tool_changes = 0, path_pieces = 0;
     std::string first_failure;

@@ -444,6 +444,21 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     f.contact_damping = pr.get_double("contact_damping", 0, 1e6, f.contact_damping);
   }
 
+  if (root.has("faults")) {
+    const ConfigNode f = root.at("faults");
+    if (!f.is_map()) f.fail("expected a mapping of faults (part_offset, tool_radius_error)");
+    if (f.has("part_offset")) {
+      const ConfigNode o = f.at("part_offset");
+      if (!o.is_map()) o.fail("expected {xyz: [x, y, z] (m), rpy: [r, p, y] (rad)}");
+      const Vec3 xyz = o.get_vec3("xyz", Vec3::Zero()), rpy = o.get_vec3("rpy", Vec3::Zero());
+      if (xyz.norm() > 0.05) o.fail("expected xyz within 0.05 m (a drill, not another placement)");
+      if (rpy.cwiseAbs().maxCoeff() > 0.2) o.fail("expected |rpy| <= 0.2 rad");
+      sc.faults.part_offset_C = pose_from_xyz_rpy(xyz, rpy);
+    }
+    sc.faults.tool_radius_error = f.get_double("tool_radius_error", -0.005, 0.005, 0.0);
+    if (f.has("tool_radius_error") && sc.robot.tool.radius + sc.faults.tool_radius_error < 0.5e-3)
+      f.at("tool_radius_error").fail("expected a burr of at least 0.5 mm radius left");
+  }
   if (root.has("quality")) {
     const ConfigNode q = root.at("quality");
     if (!q.is_map()) q.fail("expected a mapping of limits (removed_min, residual_max_mm, gouge_max_mm, protective_stops_max)");

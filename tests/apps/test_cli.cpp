@@ -373,6 +373,9 @@ TEST(Cli, RunRejectsBadScenariosWithExitTwo) {
       {"run " + tmp + "/alias_cycle.yaml -o " + tmp + "/o12", "alias_cycle.yaml"},
       {"run " + tmp + "/truncated_mesh.yaml -o " + tmp + "/o13", "truncated.stl"},
       {"sweep " + tmp + "/no_sweep.yaml -o " + tmp + "/o14 --check", "expect_sweep"},
+      // A fault drill that is another placement, or leaves no burr.
+      {"run " + sc + " -o " + tmp + "/o15 --set faults.part_offset.xyz=[0,0.1,0]", "faults.part_offset"},
+      {"run " + sc + " -o " + tmp + "/o16 --set faults.tool_radius_error=-0.0058", "faults.tool_radius_error"},
   };
   for (const auto& c : cases) {
     const CliRun r = run("-q " + c.args);  // -q: no progress lines on stderr, only the error
@@ -380,7 +383,7 @@ TEST(Cli, RunRejectsBadScenariosWithExitTwo) {
     EXPECT_NE(r.err.find(c.needle), std::string::npos) << c.args << "\n" << r.err;
     EXPECT_EQ(lines(r.err), 1) << c.args << "\n" << r.err;
   }
-  for (const char* o : {"/o1", "/o2", "/o3", "/o4", "/o5", "/o8", "/o9", "/o10", "/o11", "/o12", "/o13"})
+  for (const char* o : {"/o1", "/o2", "/o3", "/o4", "/o5", "/o8", "/o9", "/o10", "/o11", "/o12", "/o13", "/o15", "/o16"})
     EXPECT_FALSE(std::filesystem::exists(tmp + o + "/metrics.json")) << o;
 }
 

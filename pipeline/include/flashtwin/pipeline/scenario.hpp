@@ -71,6 +71,21 @@ struct QualityLimits {
   int max_protective_stops = 0;        ///< `protective_stops_max`: paths stopped by the force limit
 };
 
+/// `faults:` what the cell gets wrong that perception and planning do not know: a drill, to
+/// rehearse what a wrong pose or a worn burr does to the part. None by default.
+struct Faults {
+  /// `part_offset: {xyz: [m], rpy: [rad]}` in {C}: where the casting stands when the robot
+  /// grinds it, from where it was scanned (moved in its clamps, or the robot and the scanner
+  /// calibrated that far apart). The plan is made for the scanned pose and runs on this one.
+  Pose part_offset_C = Pose::Identity();
+  /// `tool_radius_error` [m]: the burr on the spindle less the one the plan was made for
+  /// (worn: negative; a larger burr mounted by mistake: positive).
+  double tool_radius_error = 0;
+  bool any() const {
+    return !part_offset_C.isApprox(Pose::Identity(), 0) || tool_radius_error != 0;
+  }
+};
+
 struct Scenario {
   std::string name;
   std::string file;         ///< the scenario file it was read from
@@ -104,6 +119,7 @@ struct Scenario {
     int fps = 20;
   } video;
   QualityLimits quality;                  ///< `quality:` limits of a good part
+  Faults faults;                          ///< `faults:` a drill (none by default)
   std::vector<Expectation> expect;        ///< `expect:` bounds checked by regression runs
   SweepExpectation expect_sweep;          ///< `expect_sweep:` distribution bounds over seeds
 };
