@@ -1727,7 +1727,7 @@ DetectionResult detect_flash(const PointCloud& scan_M, const MeshBvh& cad_C, con
     res.ran = true;
     res.message = std::move(message);
     res.time_s = std::chrono::duration<double>(Clock::now() - t0).count();
-    return res;
+    return std::move(res);  // (each call is a return of detect_flash)
   };
 
   // Points off the CAD surface by more than the noise threshold are flash candidates.

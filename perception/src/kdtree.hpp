@@ -2,6 +2,8 @@
 // k-d tree over float points (nanoflann), perception-internal.
 #include <nanoflann.hpp>
 
+#include "flashtwin/core/errors.hpp"
+
 #include <Eigen/Core>
 #include <cmath>
 #include <cstdint>
@@ -82,6 +84,7 @@ class KdTree {
 /// the clusters come in the order of their first points.
 inline std::vector<std::vector<std::uint32_t>> euclidean_clusters(
     const std::vector<Eigen::Vector3f>& points, const KdTree& tree, float tol) {
+  FT_ASSERT(tree.size() == points.size());
   std::vector<char> taken(points.size(), 0);
   std::vector<std::vector<std::uint32_t>> clusters;
   std::vector<std::pair<std::uint32_t, float>> nb;

@@ -451,13 +451,24 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
       const ConfigNode o = f.at("part_offset");
       if (!o.is_map()) o.fail("expected {xyz: [x, y, z] (m), rpy: [r, p, y] (rad)}");
       const Vec3 xyz = o.get_vec3("xyz", Vec3::Zero()), rpy = o.get_vec3("rpy", Vec3::Zero());
-      if (xyz.norm() > 0.05) o.fail("expected xyz within 0.05 m (a drill, not another placement)");
-      if (rpy.cwiseAbs().maxCoeff() > 0.2) o.fail("expected |rpy| <= 0.2 rad");
+      if (xyz.norm() > 0.05)
+        o.at("xyz").fail("expected an offset within 0.05 m (a drill, not another placement), got " +
+                         std::to_string(xyz.norm()) + " m");
+      if (rpy.cwiseAbs().maxCoeff() > 0.2)
+        o.at("rpy").fail("expected each angle within 0.2 rad, got " + std::to_string(rpy.cwiseAbs().maxCoeff()));
       sc.faults.part_offset_C = pose_from_xyz_rpy(xyz, rpy);
     }
     sc.faults.tool_radius_error = f.get_double("tool_radius_error", -0.005, 0.005, 0.0);
-    if (f.has("tool_radius_error") && sc.robot.tool.radius + sc.faults.tool_radius_error < 0.5e-3)
-      f.at("tool_radius_error").fail("expected a burr of at least 0.5 mm radius left");
+    // Every burr the job may use (the spindle's, the rack's) stays a ball-ended burr with it.
+    std::vector<double> burrs{sc.robot.tool.radius};
+    burrs.insert(burrs.end(), sc.tool_rack.begin(), sc.tool_rack.end());
+    for (const double r : burrs) {
+      const double e = r + sc.faults.tool_radius_error;
+      if (e < 0.5e-3 || e > sc.robot.tool.length)
+        f.at("tool_radius_error").fail("expected every burr (spindle and tool_rack) to keep a radius in [0.0005 m, its length " +
+                                       std::to_string(sc.robot.tool.length) + " m], got " + std::to_string(e) +
+                                       " m for the burr of " + std::to_string(r) + " m");
+    }
   }
   if (root.has("quality")) {
     const ConfigNode q = root.at("quality");

@@ -375,7 +375,7 @@ TEST(Cli, RunRejectsBadScenariosWithExitTwo) {
       {"sweep " + tmp + "/no_sweep.yaml -o " + tmp + "/o14 --check", "expect_sweep"},
       // A fault drill that is another placement, or leaves no burr.
       {"run " + sc + " -o " + tmp + "/o15 --set faults.part_offset.xyz=[0,0.1,0]", "faults.part_offset"},
-      {"run " + sc + " -o " + tmp + "/o16 --set faults.tool_radius_error=-0.0058", "faults.tool_radius_error"},
+      {"run " + sc + " -o " + tmp + "/o16 --set faults.tool_radius_error=-0.0028", "faults.tool_radius_error"},
   };
   for (const auto& c : cases) {
     const CliRun r = run("-q " + c.args);  // -q: no progress lines on stderr, only the error
