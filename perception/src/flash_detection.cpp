@@ -1246,6 +1246,14 @@ struct ClusterPoints {
   std::vector<bool> touch;  // within inner_limit of the CAD
   double hmax = 0;
   std::size_t touching = 0;
+  /// The points of the region's outer half (higher than half its highest): the fin's top face
+  /// and outer edge, away from the root.
+  std::vector<Vec3> outer_half() const {
+    std::vector<Vec3> out;
+    for (std::size_t i = 0; i < pts.size(); ++i)
+      if (height[i] > 0.5 * hmax) out.push_back(pts[i]);
+    return out;
+  }
 };
 
 // The points and how many touch the casting; their heights only when at least three do (the
@@ -1289,6 +1297,7 @@ void drop_points_off_fin_plane(std::vector<std::uint32_t>& cl, ClusterPoints& c,
     c.height[k] = c.height[i];
     c.hmax = std::max(c.hmax, c.height[k]);
     c.touching += c.touch[i];
+    c.touch[k] = c.touch[i];
     ++k;
   }
   if (k < cl.size())
@@ -1296,6 +1305,7 @@ void drop_points_off_fin_plane(std::vector<std::uint32_t>& cl, ClusterPoints& c,
   cl.resize(k);
   c.pts.resize(k);
   c.height.resize(k);
+  c.touch.resize(k);
 }
 
 // The region's points in the fin plane's coordinates (u along the major axis, v along the
@@ -1416,8 +1426,7 @@ std::optional<Vec3> flat_sloped_wall_normal(const std::vector<Vec3>& wall_n,
   for (const auto& v : wall_n)
     if (v.dot(mean) < std::cos(2 * M_PI / 180)) return std::nullopt;
   const std::vector<bool> all(outer_half.size(), true);
-  bool consensus = false;
-  const Plane top = fit_fin_plane(outer_half, all, std::max(30e-6, 3 * noise_sigma), &consensus);
+  const Plane top = fit_fin_plane(outer_half, all, std::max(30e-6, 3 * noise_sigma), nullptr);
   Vec3 n = top.n;
   if (n.dot(fin_n) < 0) n = -n;
   if (n.dot(fin_n) < std::cos(10 * M_PI / 180)) return std::nullopt;
@@ -1442,12 +1451,9 @@ Vec3 height_direction(const ClusterPoints& c, const RootPoints& root, const Plan
   }
   const bool tilted_to_fin = slope >= std::sin(10 * M_PI / 180);
   if (tilted_to_fin && fin.spread(1) > 100 * fin.spread(0)) return fin_n;
-  if (tilted_to_fin) {
-    std::vector<Vec3> outer;
-    for (std::size_t i = 0; i < c.pts.size(); ++i)
-      if (c.height[i] > 0.5 * c.hmax) outer.push_back(c.pts[i]);
-    if (const auto n_top = flat_sloped_wall_normal(root.normals, outer, fin_n, noise_sigma)) return *n_top;
-  }
+  if (tilted_to_fin)
+    if (const auto n_top = flat_sloped_wall_normal(root.normals, c.outer_half(), fin_n, noise_sigma))
+      return *n_top;
   if (nw.norm() > 0.5 * static_cast<double>(root.normals.size())) {
     nw.normalize();
     const Vec3 w = fin_n - fin_n.dot(nw) * nw;
@@ -1461,8 +1467,7 @@ Vec3 height_direction(const ClusterPoints& c, const RootPoints& root, const Plan
 // height direction, is the fin's mid-plane (a symmetric fin, the parting plane across the wall).
 void measure_mid_plane(const ClusterPoints& c, double noise_sigma, RegionWork& wk, FlashRegion& reg) {
   std::vector<double> h_outer, h_inner;
-  for (std::size_t i = 0; i < c.pts.size(); ++i)
-    if (c.height[i] > 0.5 * c.hmax) h_outer.push_back(wk.w.dot(c.pts[i]));
+  for (const auto& p : c.outer_half()) h_outer.push_back(wk.w.dot(p));
   for (const auto& p : wk.inner) h_inner.push_back(wk.w.dot(p));
   wk.top = percentile(h_inner, 0.5);
   if (h_outer.size() < 20) return;

@@ -377,13 +377,13 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   m["scenario"] = sc.name;
   m["seed"] = sc.seed;
   if (sc.faults.any()) {
-    m["faults.part_offset_mm"] = sc.faults.part_offset_C.translation().norm() * 1e3;
-    m["faults.part_offset_deg"] = Eigen::AngleAxisd(sc.faults.part_offset_C.linear()).angle() * 180 / M_PI;
+    const double mm = sc.faults.part_offset_C.translation().norm() * 1e3;
+    const double deg = Eigen::AngleAxisd(sc.faults.part_offset_C.linear()).angle() * 180 / M_PI;
+    m["faults.part_offset_mm"] = mm;
+    m["faults.part_offset_deg"] = deg;
     m["faults.tool_radius_error_mm"] = sc.faults.tool_radius_error * 1e3;
     spdlog::warn("fault drill: the part stands {:.2f} mm / {:.2f} deg from where it is scanned, the "
-                 "burr's radius is {:+.2f} mm off the plan's",
-                 m["faults.part_offset_mm"].get<double>(), m["faults.part_offset_deg"].get<double>(),
-                 sc.faults.tool_radius_error * 1e3);
+                 "burr's radius is {:+.2f} mm off the plan's", mm, deg, sc.faults.tool_radius_error * 1e3);
   }
 
   // --- Cell and scan (the simulator).
@@ -392,7 +392,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
                                                        ("flashtwin_run_" + std::to_string(::getpid()) + "_" +
                                                         std::to_string(next_temp_id()));
   const auto t_scan = Clock::now();
-  const ScratchFolder scratch{write ? fs::path() : cell_dir};
+  const ScratchFolder scratch{write ? fs::path() : cell_dir};  // (an output folder keeps its cell)
   const ScenarioScan ss = scan_scenario(sc, cell_dir.string(), opt.threads);
   const double scan_s = seconds_since(t_scan);
   const CellSetup& setup = ss.setup;
@@ -501,10 +501,10 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     const auto t_plan = Clock::now();
     // A part-offset drill (faults.part_offset, Δ in {C}): the part stands at X_BC·Δ when the
     // robot grinds it while the plan is made for the pose perception gave. The simulated part
-    // stays where it was scanned, so the robot runs the plan for X_BC_est·Δ⁻¹ instead: the same
+    // stays where it was scanned, so the robot runs the plan for X_BC_est·Δ⁻¹ (X_BC_plan) instead: the same
     // motion of the burr relative to the part (the arm's own joints differ by the offset).
-    const Pose X_BC_est = setup.spec.X_WB.inverse() * setup.spec.X_WM * X_CM_est.inverse() *
-                          sc.faults.part_offset_C.inverse();
+    const Pose X_BC_plan = setup.spec.X_WB.inverse() * setup.spec.X_WM * X_CM_est.inverse() *
+                           sc.faults.part_offset_C.inverse();
     double vmax = 0, amax = 0, manip = 1e300, total_time = 0, length = 0;
     int planned = 0, failed = 0, skipped = 0, tool_changes = 0, path_pieces = 0;
     std::string first_failure;
@@ -514,7 +514,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
       const planner::GrindPath gp = grind_path_of(p);
       std::vector<planner::GrindResult> pieces(1);
       try {
-        pieces = plan_in_pieces(sc.robot, X_BC_est, gp, sc.grind, kMaxPieces);
+        pieces = plan_in_pieces(sc.robot, X_BC_plan, gp, sc.grind, kMaxPieces);
         // A hole too narrow for the mounted burr: the largest burr of the rack that fits.
         if (pieces.front().status == planner::GrindStatus::kToolTooLarge) {
           std::vector<double> rack = sc.tool_rack;
@@ -523,7 +523,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
             if (r >= sc.robot.tool.radius) continue;
             RobotModel smaller = sc.robot;
             smaller.tool.radius = r;
-            auto ps = plan_in_pieces(smaller, X_BC_est, gp, sc.grind, kMaxPieces);
+            auto ps = plan_in_pieces(smaller, X_BC_plan, gp, sc.grind, kMaxPieces);
             if (ps.front().status == planner::GrindStatus::kToolTooLarge) continue;
             spdlog::info("path {}: burr of radius {:.1f} mm from the tool rack ({})", k, r * 1e3,
                          ps.front().ok() ? "planned" : ps.front().message);
