@@ -55,6 +55,26 @@ std::string scalar_ply(const std::vector<Vec3>& pts, const std::vector<float>& v
   return out;
 }
 
+// The part as it stands after grinding: `casting`'s nominal body and what is left of its flash
+// (`remaining_C`, a voxel surface in {C}, of `volume` m^3) as one fin without a root.
+sim::Casting casting_with_residual(const sim::Casting& casting, const TriangleMesh& remaining_C,
+                                   double volume) {
+  sim::Casting now;
+  now.family = casting.family;
+  now.description = casting.description;
+  now.nominal = casting.nominal;
+  now.parting_height = casting.parting_height;
+  now.size = casting.size;
+  if (!remaining_C.triangles.empty()) {
+    sim::Fin fin;
+    fin.kind = "residual";
+    fin.mesh = remaining_C;
+    fin.volume = volume;
+    now.fins.push_back(std::move(fin));
+  }
+  return now;
+}
+
 }  // namespace
 
 void write_material_maps(const std::string& dir, const sim::MaterialGrid& grid) {
@@ -78,47 +98,46 @@ void write_material_maps(const std::string& dir, const sim::MaterialGrid& grid) 
                   scalar_ply(gouge, depth, "depth_mm", {}, nullptr));
 }
 
-ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
-                               const std::vector<PlannedPath>& plans, json& m,
-                               const FrameHook& frame_hook) {
-  ExecutionSummary out;
-  out.ran = true;
-  const auto& setup = ss.setup;
-  auto grid_ptr = std::make_shared<sim::MaterialGrid>(
-      sim::make_material_grid(setup.casting, sc.execution.material));
-  sim::MaterialGrid& grid = *grid_ptr;
-  const sim::MjModelPtr model = sim::load_mjcf_file(ss.files.mjcf);
-  const sim::ToolParams tool = sim::tool_params_from(sc.robot.tool);
-  sim::ExecParams ep = sc.execution.exec;
-  ep.analyze_residual = false;  // once, after the last path (below)
-  out.target_force = ep.force_control.target_force;
+Execution::Execution(const Scenario& sc, const sim::Casting& casting)
+    : sc_(sc),
+      grid_(std::make_shared<sim::MaterialGrid>(sim::make_material_grid(casting, sc.execution.material))) {
+  summary_.ran = true;
+  summary_.target_force = sc.execution.exec.force_control.target_force;
+}
 
-  double sim_time = 0, wall = 0, track_sq = 0, track_max = 0, track_rot_max = 0;
-  double contact = 0, f_sum = 0, f_sq = 0, f_max = 0;
-  std::size_t track_n = 0, violations = 0, clamped = 0, steps = 0, executed = 0, force_stops = 0;
-  double limit_excess = 0;
-  std::string status = "ok";
-  for (const auto& [k, g] : plans) {
-    const sim::JointTrajectory tr = to_sim(g, setup.spec.X_WB);
-    const double t0 = sim_time;
+void Execution::run(const ScenarioScan& ss, const std::vector<PlannedPath>& plans,
+                    const FrameHook& frame_hook, std::size_t path_offset) {
+  if (summary_.failed) return;
+  const sim::MjModelPtr model = sim::load_mjcf_file(ss.files.mjcf);
+  const sim::ToolParams tool = sim::tool_params_from(sc_.robot.tool);
+  sim::ExecParams ep = sc_.execution.exec;
+  ep.analyze_residual = false;  // once, in finish()
+  sim::MaterialGrid& grid = *grid_;
+  const int setup_index = static_cast<int>(summary_.X_CB.size());
+  summary_.X_CB.push_back(ss.setup.spec.X_WC.inverse() * ss.setup.spec.X_WB);
+  for (const auto& [k_setup, g] : plans) {
+    const std::size_t k = k_setup + path_offset;
+    const sim::JointTrajectory tr = to_sim(g, ss.setup.spec.X_WB);
+    const double t0 = sim_time_;
     if (frame_hook) {
-      ep.on_step = [&, t0, k = k](const mjModel* mm, mjData* d, double t) {
+      ep.on_step = [&, t0, k](const mjModel* mm, mjData* d, double t) {
         frame_hook(mm, d, t0 + t, grid, k);
       };
     }
     // The burr this path was planned for (a rack burr after a tool change; same length).
     sim::ToolParams path_tool = tool;
     if (g.tool_radius > 0) path_tool.radius = g.tool_radius;
-    path_tool.radius += sc.faults.tool_radius_error;  // a drill: not the burr planned for
+    path_tool.radius += sc_.faults.tool_radius_error;  // a drill: not the burr planned for
     const sim::ExecutionResult r =
-        sim::execute_trajectory(*model, tr, &grid, path_tool, sc.execution.force, ep);
-    ++executed;
+        sim::execute_trajectory(*model, tr, &grid, path_tool, sc_.execution.force, ep);
+    ++executed_;
     spdlog::debug("execution: path {}: {} ({}), {:.1f} s simulated in {:.2f} s, tracking rmse "
                   "{:.3f} mm, flash removed {:.2f} mm3, gouge {:.3f} mm3, {} removal steps in {} steps",
                   k, sim::to_string(r.status), r.message, r.sim_time, r.wall_time,
                   r.tracking_rmse * 1e3, r.removed_flash_volume * 1e9,
                   r.removed_body_volume * 1e9, r.removal_steps, r.steps);
     const auto& L = r.log;
+    auto& out = summary_;
     for (std::size_t i = 0; i < L.t.size(); ++i) {
       out.t.push_back(t0 + L.t[i]);
       out.normal_force.push_back(L.normal_force[i]);
@@ -128,26 +147,27 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
       out.sensor_force.push_back(i < L.sensor_force_W.size() ? L.sensor_force_W[i].norm() : 0.0);
       out.q.push_back(L.q[i]);
       out.path.push_back(static_cast<int>(k));
+      out.setup.push_back(setup_index);
     }
-    sim_time += r.sim_time;
-    wall += r.wall_time;
-    steps += r.steps;
-    track_sq += r.tracking_rmse * r.tracking_rmse * static_cast<double>(r.tracking_samples);
-    track_n += r.tracking_samples;
-    track_max = std::max(track_max, r.tracking_max);
-    track_rot_max = std::max(track_rot_max, r.tracking_max_rotation);
-    violations += r.joint_limit_violations;
-    limit_excess = std::max(limit_excess, r.max_limit_excess);
-    clamped += r.clamped_steps;
+    sim_time_ += r.sim_time;
+    wall_ += r.wall_time;
+    steps_ += r.steps;
+    track_sq_ += r.tracking_rmse * r.tracking_rmse * static_cast<double>(r.tracking_samples);
+    track_n_ += r.tracking_samples;
+    track_max_ = std::max(track_max_, r.tracking_max);
+    track_rot_max_ = std::max(track_rot_max_, r.tracking_max_rotation);
+    violations_ += r.joint_limit_violations;
+    limit_excess_ = std::max(limit_excess_, r.max_limit_excess);
+    clamped_ += r.clamped_steps;
     if (r.contact_time > 0) {
-      contact += r.contact_time;
-      f_sum += r.force_mean * r.contact_time;
-      f_sq += r.force_rmse * r.force_rmse * r.contact_time;
+      contact_ += r.contact_time;
+      f_sum_ += r.force_mean * r.contact_time;
+      f_sq_ += r.force_rmse * r.force_rmse * r.contact_time;
     }
-    f_max = std::max(f_max, r.force_max);
-    if (r.status != sim::ExecStatus::kOk && status == "ok") status = sim::to_string(r.status);
+    f_max_ = std::max(f_max_, r.force_max);
+    if (r.status != sim::ExecStatus::kOk && status_ == "ok") status_ = sim::to_string(r.status);
     if (r.status == sim::ExecStatus::kForceLimit) {
-      ++force_stops;
+      ++force_stops_;
       spdlog::warn("execution: path {}: {}", k, r.message);
     }
     if (r.status == sim::ExecStatus::kUnstable) {
@@ -156,21 +176,30 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
       break;
     }
   }
+}
 
+sim::Casting Execution::casting_now(const sim::Casting& casting) const {
+  return casting_with_residual(casting, sim::remaining_flash_mesh(*grid_),
+                               sim::analyze_residual(*grid_).flash_volume_remaining);
+}
+
+ExecutionSummary Execution::finish(json& m) {
+  ExecutionSummary out = summary_;
+  const sim::MaterialGrid& grid = *grid_;
   out.residual = sim::analyze_residual(grid);
   out.remaining_flash_C = sim::remaining_flash_mesh(grid);
-  out.grid = grid_ptr;
+  out.grid = grid_;
 
-  m["execution.paths_executed"] = executed;
-  m["execution.paths_stopped_force_limit"] = force_stops;
-  m["execution.status"] = status;
-  m["execution.tracking_rmse_mm"] = track_n ? std::sqrt(track_sq / track_n) * 1e3 : 0.0;
-  m["execution.tracking_max_mm"] = track_max * 1e3;
-  m["execution.tracking_max_rotation_deg"] = track_rot_max * 180 / M_PI;
-  m["execution.joint_limit_violations"] = violations;
-  m["execution.max_limit_excess_rad"] = limit_excess;
-  m["execution.clamped_steps"] = clamped;
-  m["execution.force_control"] = ep.force_control.enabled;
+  m["execution.paths_executed"] = executed_;
+  m["execution.paths_stopped_force_limit"] = force_stops_;
+  m["execution.status"] = status_;
+  m["execution.tracking_rmse_mm"] = track_n_ ? std::sqrt(track_sq_ / track_n_) * 1e3 : 0.0;
+  m["execution.tracking_max_mm"] = track_max_ * 1e3;
+  m["execution.tracking_max_rotation_deg"] = track_rot_max_ * 180 / M_PI;
+  m["execution.joint_limit_violations"] = violations_;
+  m["execution.max_limit_excess_rad"] = limit_excess_;
+  m["execution.clamped_steps"] = clamped_;
+  m["execution.force_control"] = sc_.execution.exec.force_control.enabled;
   const auto& res = out.residual;
   m["removal.flash_volume_mm3"] = res.flash_volume_initial * 1e9;
   m["removal.flash_remaining_mm3"] = res.flash_volume_remaining * 1e9;
@@ -181,34 +210,31 @@ ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
   m["removal.gouge_volume_mm3"] = res.gouge_volume * 1e9;
   m["removal.voxel_size_mm"] = grid.voxel_size() * 1e3;
   m["force.target_n"] = out.target_force;
-  m["force.contact_time_s"] = contact;
-  m["force.mean_n"] = contact > 0 ? f_sum / contact : 0.0;
-  m["force.rmse_n"] = contact > 0 ? std::sqrt(f_sq / contact) : 0.0;
-  m["force.rmse_ratio"] = contact > 0 ? std::sqrt(f_sq / contact) / out.target_force : 0.0;
-  m["force.max_n"] = f_max;
-  m["sim.time_s"] = sim_time;
-  m["sim.steps"] = steps;
-  m["sim.realtime_factor"] = finite_or_null(wall > 0 ? sim_time / wall : NAN);
-  m["sim.step_us"] = steps ? wall / static_cast<double>(steps) * 1e6 : 0.0;
+  m["force.contact_time_s"] = contact_;
+  m["force.mean_n"] = contact_ > 0 ? f_sum_ / contact_ : 0.0;
+  m["force.rmse_n"] = contact_ > 0 ? std::sqrt(f_sq_ / contact_) : 0.0;
+  m["force.rmse_ratio"] = contact_ > 0 ? std::sqrt(f_sq_ / contact_) / out.target_force : 0.0;
+  m["force.max_n"] = f_max_;
+  m["sim.time_s"] = sim_time_;
+  m["sim.steps"] = steps_;
+  m["sim.realtime_factor"] = finite_or_null(wall_ > 0 ? sim_time_ / wall_ : NAN);
+  m["sim.step_us"] = steps_ ? wall_ / static_cast<double>(steps_) * 1e6 : 0.0;
   return out;
+}
+
+ExecutionSummary execute_plans(const Scenario& sc, const ScenarioScan& ss,
+                               const std::vector<PlannedPath>& plans, json& m,
+                               const FrameHook& frame_hook) {
+  Execution e(sc, ss.setup.casting);
+  e.run(ss, plans, frame_hook);
+  return e.finish(m);
 }
 
 void rescan_after(const Scenario& sc, const ScenarioScan& ss, const Pose& X_CM_est,
                   ExecutionSummary& summary, json& m) {
   // The part as it is now: the nominal body and the remaining flash (voxel surface).
-  sim::Casting after;
-  after.family = ss.setup.casting.family;
-  after.description = ss.setup.casting.description;
-  after.nominal = ss.setup.casting.nominal;
-  after.parting_height = ss.setup.casting.parting_height;
-  after.size = ss.setup.casting.size;
-  if (!summary.remaining_flash_C.triangles.empty()) {
-    sim::Fin fin;
-    fin.kind = "residual";
-    fin.mesh = summary.remaining_flash_C;
-    fin.volume = summary.residual.flash_volume_remaining;
-    after.fins.push_back(std::move(fin));
-  }
+  const sim::Casting after = casting_with_residual(ss.setup.casting, summary.remaining_flash_C,
+                                                   summary.residual.flash_volume_remaining);
   sim::ScanParams params = ss.params;  // the same views as the first scan
   params.seed = sc.seed + 1000003;  // a new scan, not a replay of the first one's noise
   params.threads = std::max(1, params.threads);

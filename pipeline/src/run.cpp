@@ -12,8 +12,10 @@
 #include <fstream>
 #include <iomanip>
 #include <memory>
+#include <optional>
 #include <unistd.h>
 #include <sstream>
+#include <unordered_set>
 
 #include "flashtwin/core/errors.hpp"
 #include "flashtwin/core/format.hpp"
@@ -196,15 +198,24 @@ std::vector<std::string> check_expectations(const Scenario& sc, const json& metr
   return bad;
 }
 
-double unseen_parting_fraction(const ScenarioScan& ss) {
+std::vector<Vec3> flash_points_seen_C(const ScenarioScan& ss) {
   const Pose X_CM_true = ss.setup.spec.X_WC.inverse() * ss.scan.X_WM_true;
   const auto& r = ss.scan.result;
   std::vector<Vec3> flash_C;
   for (std::size_t i = 0; i < r.cloud_M.size(); ++i)
     if (r.truth[i] == sim::kTruthFlash) flash_C.push_back(X_CM_true * r.cloud_M.points[i].cast<double>());
+  return flash_C;
+}
+
+std::vector<Curve> true_roots(const sim::Casting& casting) {
   std::vector<Curve> roots;
-  for (const auto& f : ss.setup.casting.fins) roots.push_back({f.root, f.closed});
-  return unseen_root_fraction(roots, flash_C);
+  for (const auto& f : casting.fins)
+    if (!f.root.empty()) roots.push_back({f.root, f.closed});
+  return roots;
+}
+
+double unseen_parting_fraction(const ScenarioScan& ss) {
+  return unseen_root_fraction(true_roots(ss.setup.casting), flash_points_seen_C(ss));
 }
 
 perception::RegistrationParams cell_registration_params() {
@@ -214,11 +225,13 @@ perception::RegistrationParams cell_registration_params() {
   return rp;
 }
 
-ScenarioScan scan_scenario(const Scenario& sc, const std::string& cell_dir, int threads) {
+ScenarioScan scan_setup(const Scenario& sc, const CellSetup& setup, const std::string& cell_dir,
+                        int threads, std::uint64_t scan_seed) {
   ScenarioScan s;
-  s.setup = setup_cell(sc);
+  s.setup = setup;
   s.files = sim::write_cell(sc.robot, s.setup.spec, s.setup.casting, cell_dir);
   s.params = sc.scan;
+  s.params.seed = scan_seed;
   s.params.threads = std::max(1, threads);
   const Pose X_WM_true = sim::perturb_pose(s.setup.spec.X_WM, sc.calibration_translation,
                                            sc.calibration_rotation, sc.seed);
@@ -247,12 +260,16 @@ ScenarioScan scan_scenario(const Scenario& sc, const std::string& cell_dir, int 
     s.plan = sim::plan_scan_views(s.files.mjcf, s.setup.casting.nominal, X_WC_est, s.setup.spec.X_WM,
                                   sc.scan.noise, sc.view_plan, s.params.threads);
     s.params.views = s.plan.views;
-    s.params.seed = sc.scan.seed + 7919;  // a new scan, not the survey's noise again
+    s.params.seed = scan_seed + 7919;  // a new scan, not the survey's noise again
     s.planned = true;
     s.surveyed = true;
   }
   s.scan = sim::scan_cell(s.files.mjcf, s.setup.casting, s.params, s.setup.spec.X_WM, X_WM_true);
   return s;
+}
+
+ScenarioScan scan_scenario(const Scenario& sc, const std::string& cell_dir, int threads) {
+  return scan_setup(sc, setup_cell(sc), cell_dir, threads, sc.scan.seed);
 }
 
 void save_scan(const ScenarioScan& s, const std::string& dir, bool pcd) {
@@ -364,6 +381,378 @@ PointCloud registration_cloud(const Scenario& sc, const ScenarioScan& ss) {
   return without_fixture(ss.scan.result.cloud_M, sc, ss.setup, 0.003);
 }
 
+namespace {
+
+// --- Stages of a run. Each writes its metrics into the json it is given (a second setup's go
+// under "setup2.", merge_second_setup).
+
+/// What perception made of one setup's scan.
+struct Perception {
+  perception::RegistrationResult registration;
+  perception::DetectionResult detection;  ///< ran only with a confident pose
+  Pose X_CM_est = Pose::Identity();
+  double time_s = 0;
+};
+
+// Pose, then flashes. Inputs: the scan in {M}, the CAD model, X_WM as calibrated (nominal),
+// never the truth; the truth only scores the pose (registration.*).
+Perception perceive(const Scenario& sc, const ScenarioScan& ss, const RunOptions& opt, json& m) {
+  const auto t0 = Clock::now();
+  Perception p;
+  const CellSetup& setup = ss.setup;
+  progress(opt, "registration", 0.15);
+  const auto target = perception::ModelTarget::from_mesh_cached(setup.casting.nominal);
+  p.registration = perception::register_scan(registration_cloud(sc, ss), *target, cell_registration_params());
+  const auto& reg = p.registration;
+  p.X_CM_est = reg.T_target_source;
+  // Truth: where {M} really is relative to {C} (the calibrated X_WM is what perception used;
+  // the pose error counts what registration got wrong about the casting in the cell).
+  const Pose X_CM_true = setup.spec.X_WC.inverse() * ss.scan.X_WM_true;
+  const Pose X_WC_est = setup.spec.X_WM * p.X_CM_est.inverse();
+  m["registration.confident"] = reg.confident;
+  m["registration.rotation_error_deg"] =
+      rotation_distance(X_WC_est.linear(), setup.spec.X_WC.linear()) * 180 / M_PI;
+  m["registration.translation_error_mm"] =
+      (X_WC_est.translation() - setup.spec.X_WC.translation()).norm() * 1000;
+  // The error that matters for grinding: how far points of the casting land from where they
+  // are (max over the CAD vertices), in the scanner frame.
+  double worst = 0;
+  for (const auto& v : setup.casting.nominal.vertices)
+    worst = std::max(worst, (p.X_CM_est * (X_CM_true.inverse() * v) - v).norm());
+  m["registration.surface_error_max_mm"] = worst * 1000;
+  m["registration.fitness"] = reg.fitness;
+  m["registration.rmse_mm"] = reg.rmse * 1000;
+  m["registration.time_s"] = reg.time_s;
+  m["registration.message"] = reg.message;
+  if (reg.confident) {
+    progress(opt, "detection", 0.3);
+    const MeshBvh cad_bvh(setup.casting.nominal);
+    p.detection = perception::detect_flash(ss.scan.result.cloud_M, cad_bvh, p.X_CM_est, sc.detection);
+  }
+  p.time_s = seconds_since(t0);
+  return p;
+}
+
+// Scoring (reads the truth): the segmentation against the scan's labels and the extracted
+// paths against the true roots (segmentation.*, path.*).
+void score_detection(const perception::DetectionResult& det, const sim::CellScan& scan,
+                     const std::vector<Curve>& extracted, const std::vector<Curve>& roots, json& m) {
+  const auto seg = score_segmentation(det.labels, scan.result.truth);
+  m["segmentation.precision"] = seg.precision;
+  m["segmentation.recall"] = seg.recall;
+  m["segmentation.flash_points_detected"] = seg.true_positive + seg.false_positive;
+  m["segmentation.flash_points_true"] = seg.true_positive + seg.false_negative;
+  m["segmentation.regions"] = det.regions.size();
+  m["segmentation.noise_sigma_mm"] = det.noise_sigma * 1000;
+  m["segmentation.threshold_mm"] = det.threshold * 1000;
+  m["segmentation.time_s"] = det.time_s;
+  m["path.points_before_voxel"] = det.path_points_before;
+  m["path.points_after_voxel"] = det.path_points_after;
+  m["timing.path_voxel_ms"] = det.path_voxel_time_s * 1000;
+  const auto ps = score_path(extracted, roots);
+  m["path.count"] = extracted.size();
+  m["path.true_count"] = roots.size();
+  m["path.mean_mm"] = finite_or_null(ps.mean * 1000);
+  m["path.rmse_mm"] = finite_or_null(ps.rmse * 1000);
+  m["path.max_mm"] = finite_or_null(ps.max * 1000);
+  m["path.coverage"] = ps.coverage;
+  m["path.spurious_max_mm"] = finite_or_null(ps.spurious_max * 1000);
+  m["path.length_m"] = ps.path_length;
+  m["path.true_length_m"] = ps.true_length;
+}
+
+std::vector<Curve> curves_of(const perception::DetectionResult& det) {
+  std::vector<Curve> out;
+  for (const auto& p : det.paths) out.push_back({p.points_C, p.closed});
+  return out;
+}
+
+// A path's plan, in pieces when the wrist cannot follow it in one go (plan_in_pieces), with a
+// smaller burr from the rack when the hole is too narrow for the mounted one.
+std::vector<planner::GrindResult> plan_path(const Scenario& sc, const Pose& X_BC_plan,
+                                            const planner::GrindPath& gp, std::size_t k,
+                                            int& tool_changes) {
+  constexpr int kMaxPieces = 8;
+  std::vector<planner::GrindResult> pieces(1);
+  try {
+    pieces = plan_in_pieces(sc.robot, X_BC_plan, gp, sc.grind, kMaxPieces);
+    // A hole too narrow for the mounted burr: the largest burr of the rack that fits.
+    if (pieces.front().status == planner::GrindStatus::kToolTooLarge) {
+      std::vector<double> rack = sc.tool_rack;
+      std::sort(rack.rbegin(), rack.rend());
+      for (const double r : rack) {
+        if (r >= sc.robot.tool.radius) continue;
+        RobotModel smaller = sc.robot;
+        smaller.tool.radius = r;
+        auto ps = plan_in_pieces(smaller, X_BC_plan, gp, sc.grind, kMaxPieces);
+        if (ps.front().status == planner::GrindStatus::kToolTooLarge) continue;
+        spdlog::info("path {}: burr of radius {:.1f} mm from the tool rack ({})", k, r * 1e3,
+                     ps.front().ok() ? "planned" : ps.front().message);
+        tool_changes += ps.front().ok();
+        pieces = std::move(ps);
+        break;
+      }
+    }
+  } catch (const ArgumentError& e) {
+    pieces.assign(1, planner::GrindResult{});
+    pieces.front().status = planner::GrindStatus::kDiscontinuous;
+    pieces.front().message = std::string("path rejected: ") + e.what();
+  }
+  return pieces;
+}
+
+// The plan's files for one grinding motion: DIR/plan/NAME (trajectory, plots with the report,
+// the KRL program).
+void write_plan_files(const Scenario& sc, const planner::GrindResult& g, const fs::path& dir,
+                      const std::string& name, bool report) {
+  const std::string pd = (dir / "plan" / name).string();
+  // The joint plots belong to the report (--no-report skips them).
+  const std::string csv = planner::trajectory_csv(g);
+  planner::write_grind_outputs(g, pd, report, csv);
+  // The robot program a real KUKA controller would run (frames declared in it).
+  planner::ProgramParams pp;
+  pp.name = "flashtwin_" + name;
+  try {
+    planner::export_program_file(sc.robot, g.trajectory, pp, pd);
+  } catch (const ArgumentError& e) {
+    spdlog::warn("{}: no KRL program: {}", name, e.what());
+  }
+}
+
+/// One setup's plans.
+struct Plans {
+  std::vector<PlannedPath> paths;  ///< every grinding motion (a path in pieces: one per piece)
+  std::vector<std::size_t> failed_paths;  ///< detected paths that could not be planned
+  int failed = 0;
+  std::string first_failure;
+  double time_s = 0;
+};
+
+// One grinding motion per path (or per piece of it), on the casting where perception put it
+// (trajectory.*). `dir` empty: nothing written.
+Plans plan_setup(const Scenario& sc, const CellSetup& setup, const Perception& perc,
+                 const RunOptions& opt, const fs::path& dir, json& m) {
+  Plans out;
+  const auto& det = perc.detection;
+  progress(opt, "planning", 0.5);
+  const auto t0 = Clock::now();
+  // A part-offset drill (faults.part_offset, Δ in {C}): the part stands at X_BC·Δ when the
+  // robot grinds it while the plan is made for the pose perception gave. The simulated part
+  // stays where it was scanned, so the robot runs the plan for X_BC_est·Δ⁻¹ (X_BC_plan) instead: the same
+  // motion of the burr relative to the part (the arm's own joints differ by the offset).
+  const Pose X_BC_plan = setup.spec.X_WB.inverse() * setup.spec.X_WM * perc.X_CM_est.inverse() *
+                         sc.faults.part_offset_C.inverse();
+  double vmax = 0, amax = 0, manip = 1e300, total_time = 0, length = 0;
+  int planned = 0, skipped = 0, tool_changes = 0, path_pieces = 0;
+  json plans = json::array();
+  for (std::size_t k = 0; k < det.paths.size(); ++k) {
+    const auto pieces = plan_path(sc, X_BC_plan, grind_path_of(det.paths[k]), k, tool_changes);
+    const planner::GrindResult& g = pieces.front();
+    json pj = {{"path", k}, {"status", planner::to_string(g.status)}, {"message", g.message}};
+    if (pieces.size() > 1) {
+      pj["pieces"] = pieces.size();
+      spdlog::info("path {}: ground in {} pieces (the wrist cannot follow it in one go)", k, pieces.size());
+    }
+    if (g.ok()) {
+      ++planned;
+      for (std::size_t piece = 0; piece < pieces.size(); ++piece) {
+        const planner::GrindResult& gk = pieces[piece];
+        ++path_pieces;
+        vmax = std::max(vmax, gk.max_joint_velocity_ratio);
+        amax = std::max(amax, gk.max_joint_accel_ratio);
+        manip = std::min(manip, gk.min_manipulability);
+        total_time += gk.total_time;
+        length += gk.cut_length;
+        pj["time_s"] = pj.value("time_s", 0.0) + gk.total_time;
+        pj["cut_length_m"] = pj.value("cut_length_m", 0.0) + gk.cut_length;
+        out.paths.push_back({k, gk});
+        if (dir.empty()) continue;
+        // path_K, then path_K_2, path_K_3 for the further pieces of a path ground in pieces.
+        const std::string name = "path_" + std::to_string(k) + (piece ? "_" + std::to_string(piece + 1) : "");
+        write_plan_files(sc, gk, dir, name, opt.report);
+        if (planned == 1 && piece == 0) write_text_file((dir / "trajectory.csv").string(), planner::trajectory_csv(gk));
+      }
+    } else if (g.status == planner::GrindStatus::kToolTooLarge) {
+      // Not a failure of the plan: this tool cannot do it (a real cell drills such holes or
+      // changes the burr); reported and counted apart.
+      ++skipped;
+      spdlog::info("path {} skipped: {}", k, g.message);
+    } else {
+      ++out.failed;
+      out.failed_paths.push_back(k);
+      if (out.first_failure.empty()) out.first_failure = "path " + std::to_string(k) + ": " + g.message;
+    }
+    plans.push_back(pj);
+  }
+  out.time_s = seconds_since(t0);
+  m["trajectory.paths_planned"] = planned;
+  m["trajectory.paths_failed"] = out.failed;
+  m["trajectory.paths_skipped_tool_too_large"] = skipped;
+  m["trajectory.paths_with_rack_tool"] = tool_changes;
+  m["trajectory.path_pieces"] = path_pieces;  // grinding motions: a path ground in pieces counts each
+  m["trajectory.max_joint_velocity_ratio"] = vmax;
+  m["trajectory.max_joint_accel_ratio"] = amax;
+  m["trajectory.min_manipulability"] = finite_or_null(planned ? manip : NAN);
+  m["trajectory.total_time_s"] = total_time;
+  m["trajectory.cut_length_m"] = length;
+  if (!out.first_failure.empty()) m["trajectory.first_failure"] = out.first_failure;
+  if (!dir.empty()) write_text_file((dir / "plans.json").string(), plans.dump(1) + "\n");
+  return out;
+}
+
+// The cell's scan metrics (scan.*) of one setup.
+void scan_metrics(const ScenarioScan& ss, json& m) {
+  m["scan.points"] = ss.scan.result.cloud_M.size();
+  m["scan.rays_per_s"] = ss.scan.result.rays_per_s();
+  m["scan.views"] = ss.params.views.size();
+  m["scan.surveyed"] = ss.surveyed;
+  if (ss.planned) {
+    m["scan.plan_unseen_fraction"] = ss.plan.unseen_fraction;
+    m["scan.plan_unseen_by_any"] = ss.plan.unseen_by_any;
+  }
+}
+
+/// What the cell knows is left to do on a part after a setup, in {C}.
+struct WorkLeft {
+  double unseen_fraction = 0;  ///< share of the CAD surface no point of the scan came near
+  std::size_t paths_left = 0;  ///< detected paths it could not plan
+  std::vector<Vec3> normals_C;  ///< outward normals where work is left (unseen surface, roots)
+  std::vector<double> weights;  ///< [m^2] the surface each stands for
+};
+
+// From what perception and planning made of a setup (never the truth): CAD surface samples
+// (3 mm cells) with no scan point, by the estimated pose, within about a millimetre outside
+// them (1 mm cells round the point 0.5 mm out along the normal: the wall behind a thin flange
+// does not count) are unseen, flash may stand there; the roots of paths that could not be
+// planned are known flash, each root point standing for its spacing times 30 mm of surface.
+WorkLeft work_left(const ScenarioScan& ss, const Perception& perc, const Plans& plans) {
+  constexpr double kCell = 0.003, kSeen = 0.001, kRootBand = 0.03;
+  WorkLeft w;
+  std::unordered_set<std::uint64_t> seen;
+  for (const auto& p : ss.scan.result.cloud_M.points)
+    seen.insert(sim::cell_key(perc.X_CM_est * p.cast<double>(), kSeen));
+  const auto near_seen = [&](const Vec3& q, const Vec3& n) {
+    const Vec3 c = q + 0.5 * kSeen * n;
+    for (int dx = -1; dx <= 1; ++dx)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dz = -1; dz <= 1; ++dz)
+          if (seen.count(sim::cell_key(c + kSeen * Vec3(dx, dy, dz), kSeen))) return true;
+    return false;
+  };
+  const sim::SurfaceSamples S = sim::surface_samples(ss.setup.casting.nominal, kCell);
+  for (std::size_t i = 0; i < S.points_C.size(); ++i) {
+    if (near_seen(S.points_C[i], S.normals_C[i])) continue;
+    w.normals_C.push_back(S.normals_C[i]);
+    w.weights.push_back(kCell * kCell);
+  }
+  w.unseen_fraction = static_cast<double>(w.normals_C.size()) /
+                      static_cast<double>(std::max<std::size_t>(1, S.points_C.size()));
+  for (const std::size_t k : plans.failed_paths) {
+    const auto& path = perc.detection.paths[k];
+    ++w.paths_left;
+    for (std::size_t i = 0; i + 1 < path.points_C.size(); ++i) {
+      w.normals_C.push_back(path.normals_C[i]);
+      w.weights.push_back((path.points_C[i + 1] - path.points_C[i]).norm() * kRootBand);
+    }
+  }
+  return w;
+}
+
+// The direction of {C} to turn up for the next setup: where the work left faces sideways or up
+// (a wall facing up to 15° below the horizon is still reached and seen, as the fixture-held
+// parts show) over as much of its surface as possible, the part lying low (its height along the
+// direction, over its largest extent, costs a quarter: a plate standing on its edge puts its
+// far roots out of the arm's reach). Candidates: 256 directions spread over the sphere and
+// {C}'s six axis directions; the first best is taken (deterministic).
+Vec3 turn_up_direction(const WorkLeft& w, const TriangleMesh& cad_C) {
+  constexpr double kBelowHorizon = -0.26, kHeightCost = 0.25;
+  std::vector<Vec3> cand{Vec3::UnitZ(), -Vec3::UnitZ(), Vec3::UnitX(), -Vec3::UnitX(), Vec3::UnitY(), -Vec3::UnitY()};
+  constexpr int kSpread = 256;
+  const double golden = M_PI * (3.0 - std::sqrt(5.0));
+  for (int i = 0; i < kSpread; ++i) {  // a Fibonacci sphere
+    const double z = 1.0 - 2.0 * (i + 0.5) / kSpread, r = std::sqrt(1.0 - z * z);
+    cand.emplace_back(r * std::cos(golden * i), r * std::sin(golden * i), z);
+  }
+  double total = 0;
+  for (const double x : w.weights) total += x;
+  Vec3 lo = cad_C.vertices.front(), hi = lo;
+  for (const auto& v : cad_C.vertices) {
+    lo = lo.cwiseMin(v);
+    hi = hi.cwiseMax(v);
+  }
+  const double extent = std::max(1e-9, (hi - lo).norm());
+  Vec3 best = cand.front();
+  double best_score = -1e300;
+  for (const Vec3& u : cand) {
+    double reached = 0;
+    for (std::size_t i = 0; i < w.normals_C.size(); ++i)
+      if (w.normals_C[i].dot(u) >= kBelowHorizon) reached += w.weights[i];
+    double top = -1e300, bottom = 1e300;
+    for (const auto& v : cad_C.vertices) {
+      top = std::max(top, v.dot(u));
+      bottom = std::min(bottom, v.dot(u));
+    }
+    const double score = (total > 0 ? reached / total : 1.0) - kHeightCost * (top - bottom) / extent;
+    if (score > best_score + 1e-12) {
+      best_score = score;
+      best = u;
+    }
+  }
+  return best;
+}
+
+/// The second setup of a part (placement.turn_over): what it scanned, perceived and planned.
+struct SecondSetup {
+  ScenarioScan scan;
+  Perception perception;
+  Plans plans;
+  json metrics;  ///< its own scan.*, registration.*, segmentation.*, path.*, trajectory.*
+};
+
+// The part, as the first setup left it, is turned over (turned_over), scanned (a survey and the
+// views planned from its pose), registered, searched for flash and planned for, exactly as in
+// the first setup; what is planned is ground on the same material (the caller runs it).
+SecondSetup second_setup(const Scenario& sc, const CellSetup& first, const WorkLeft& left,
+                         const Execution& exec, const fs::path& cell_dir, const fs::path& dir,
+                         const RunOptions& opt) {
+  SecondSetup s;
+  progress(opt, "second setup", 0.7);
+  const CellSetup setup = turned_over(sc, first, exec.casting_now(first.casting),
+                                     turn_up_direction(left, first.casting.nominal));
+  s.scan = scan_setup(sc, setup, (cell_dir / "setup2").string(), opt.threads, sc.scan.seed + 104729);
+  scan_metrics(s.scan, s.metrics);
+  s.perception = perceive(sc, s.scan, opt, s.metrics);
+  const auto& det = s.perception.detection;
+  if (!det.ran) return s;
+  // The residual fin has no root: the paths are scored against the casting's true roots.
+  score_detection(det, s.scan.scan, curves_of(det), true_roots(first.casting), s.metrics);
+  const fs::path out = dir.empty() ? fs::path() : dir / "setup2";
+  if (!out.empty()) write_paths(out.string(), det);
+  if (!det.paths.empty()) s.plans = plan_setup(sc, setup, s.perception, opt, out, s.metrics);
+  return s;
+}
+
+// A second setup's metrics go under "setup2."; the part's totals (planned and failed paths,
+// planning time and length, the worst joint-rate ratios) count both setups.
+void merge_second_setup(const json& m2, json& m) {
+  for (const auto& [key, v] : m2.items()) m["setup2." + key] = v;
+  for (const char* key : {"trajectory.paths_planned", "trajectory.paths_failed",
+                          "trajectory.paths_skipped_tool_too_large", "trajectory.paths_with_rack_tool",
+                          "trajectory.path_pieces", "trajectory.total_time_s", "trajectory.cut_length_m"}) {
+    if (!m2.contains(key)) continue;
+    if (m2[key].is_number_integer() && (!m.contains(key) || m[key].is_number_integer()))
+      m[key] = (m.contains(key) ? m[key].get<std::int64_t>() : 0) + m2[key].get<std::int64_t>();
+    else
+      m[key] = (m.contains(key) ? m[key].get<double>() : 0.0) + m2[key].get<double>();
+  }
+  for (const char* key : {"trajectory.max_joint_velocity_ratio", "trajectory.max_joint_accel_ratio"}) {
+    if (!m2.contains(key)) continue;
+    m[key] = std::max(m.contains(key) ? m[key].get<double>() : 0.0, m2[key].get<double>());
+  }
+}
+
+}  // namespace
+
 RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   const auto t_total = Clock::now();
   // Perception's parallel loops use this run's thread budget (a sweep runs each casting on
@@ -400,92 +789,31 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   m["casting.family"] = sim::to_string(sc.casting.family);
   m["casting.flashes"] = setup.casting.fins.size();
   m["casting.flash_volume_mm3"] = setup.casting.flash_volume() * 1e9;
-
-  const PointCloud& cloud_M = scan.result.cloud_M;
-  m["scan.points"] = cloud_M.size();
-  m["scan.rays_per_s"] = scan.result.rays_per_s();
-  m["scan.views"] = ss.params.views.size();
-  m["scan.surveyed"] = ss.surveyed;
-  if (ss.planned) {
-    m["scan.plan_unseen_fraction"] = ss.plan.unseen_fraction;
-    m["scan.plan_unseen_by_any"] = ss.plan.unseen_by_any;
-  }
+  scan_metrics(ss, m);
   m["scan.unseen_parting_fraction"] = unseen_parting_fraction(ss);
   if (write && opt.write_scan) save_scan(ss, dir.string(), false);
 
-  // --- Perception: pose, then flashes. Inputs: the scan in {M}, the CAD model, X_WM as
-  // calibrated (nominal), never the truth.
-  progress(opt, "registration", 0.15);
-  const auto t_perc = Clock::now();
-  const auto target = perception::ModelTarget::from_mesh_cached(setup.casting.nominal);
-  out.registration = perception::register_scan(registration_cloud(sc, ss), *target, cell_registration_params());
-  const auto& reg = out.registration;
-  const Pose X_CM_est = reg.T_target_source;
-  // Truth: where {M} really is relative to {C} (the calibrated X_WM is what perception used;
-  // the pose error counts what registration got wrong about the casting in the cell).
-  const Pose X_CM_true = setup.spec.X_WC.inverse() * scan.X_WM_true;
-  const Pose X_WC_est = setup.spec.X_WM * X_CM_est.inverse();
-  m["registration.confident"] = reg.confident;
-  m["registration.rotation_error_deg"] =
-      rotation_distance(X_WC_est.linear(), setup.spec.X_WC.linear()) * 180 / M_PI;
-  m["registration.translation_error_mm"] =
-      (X_WC_est.translation() - setup.spec.X_WC.translation()).norm() * 1000;
-  // The error that matters for grinding: how far points of the casting land from where they
-  // are (max over the CAD vertices), in the scanner frame.
-  double worst = 0;
-  for (const auto& v : setup.casting.nominal.vertices)
-    worst = std::max(worst, (X_CM_est * (X_CM_true.inverse() * v) - v).norm());
-  m["registration.surface_error_max_mm"] = worst * 1000;
-  m["registration.fitness"] = reg.fitness;
-  m["registration.rmse_mm"] = reg.rmse * 1000;
-  m["registration.time_s"] = reg.time_s;
-  m["registration.message"] = reg.message;
-
-  if (!reg.confident) {
+  // --- Perception: pose, then flashes.
+  const Perception perc = perceive(sc, ss, opt, m);
+  out.registration = perc.registration;
+  out.detection = perc.detection;
+  const auto& det = out.detection;
+  const double perception_s = perc.time_s;
+  if (!perc.registration.confident) {
     out.refused = true;
     out.exit_code = 1;
-    out.verdict = "refused: registration not confident (" + reg.message + ")";
-  } else {
-    progress(opt, "detection", 0.3);
-    const MeshBvh cad_bvh(setup.casting.nominal);
-    out.detection = perception::detect_flash(cloud_M, cad_bvh, X_CM_est, sc.detection);
+    out.verdict = "refused: registration not confident (" + perc.registration.message + ")";
   }
-  const double perception_s = seconds_since(t_perc);
-  const auto& det = out.detection;
 
-  // --- Scoring (ground truth from here on).
-  progress(opt, "scoring", 0.9);
+  // --- Scoring of perception (ground truth from here on).
+  progress(opt, "scoring", 0.4);
   if (det.ran) {
-    const auto seg = score_segmentation(det.labels, scan.result.truth);
-    m["segmentation.precision"] = seg.precision;
-    m["segmentation.recall"] = seg.recall;
-    m["segmentation.flash_points_detected"] = seg.true_positive + seg.false_positive;
-    m["segmentation.flash_points_true"] = seg.true_positive + seg.false_negative;
-    m["segmentation.regions"] = det.regions.size();
-    m["segmentation.noise_sigma_mm"] = det.noise_sigma * 1000;
-    m["segmentation.threshold_mm"] = det.threshold * 1000;
-    m["segmentation.time_s"] = det.time_s;
-    m["path.points_before_voxel"] = det.path_points_before;
-    m["path.points_after_voxel"] = det.path_points_after;
-    m["timing.path_voxel_ms"] = det.path_voxel_time_s * 1000;
-    std::vector<Curve> extracted, truth;
-    for (const auto& p : det.paths) extracted.push_back({p.points_C, p.closed});
-    for (const auto& f : setup.casting.fins) truth.push_back({f.root, f.closed});
-    const auto ps = score_path(extracted, truth);
-    m["path.count"] = det.paths.size();
-    m["path.true_count"] = truth.size();
-    m["path.mean_mm"] = finite_or_null(ps.mean * 1000);
-    m["path.rmse_mm"] = finite_or_null(ps.rmse * 1000);
-    m["path.max_mm"] = finite_or_null(ps.max * 1000);
-    m["path.coverage"] = ps.coverage;
-    m["path.spurious_max_mm"] = finite_or_null(ps.spurious_max * 1000);
-    m["path.length_m"] = ps.path_length;
-    m["path.true_length_m"] = ps.true_length;
+    score_detection(det, scan, curves_of(det), true_roots(setup.casting), m);
     if (write) write_paths(dir.string(), det);
     if (write && opt.write_scan) {
       PointCloud lab;
-      lab.points.reserve(cloud_M.size());
-      for (const auto& p : cloud_M.points) lab.points.push_back((X_CM_est * p.cast<double>()).cast<float>());
+      lab.points.reserve(scan.result.cloud_M.size());
+      for (const auto& p : scan.result.cloud_M.points) lab.points.push_back((perc.X_CM_est * p.cast<double>()).cast<float>());
       lab.labels = det.labels;
       save_ply((dir / "scan_detected_C.ply").string(), lab);
     }
@@ -493,122 +821,27 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
 
   // --- Planning: one grinding motion per path (or per piece of it, plan_in_pieces), on the
   // casting where perception put it.
-  constexpr int kMaxPieces = 8;
-  double planning_s = 0;
-  std::vector<PlannedPath> planned_paths;
-  if (!out.refused && !det.paths.empty()) {
-    progress(opt, "planning", 0.5);
-    const auto t_plan = Clock::now();
-    // A part-offset drill (faults.part_offset, Δ in {C}): the part stands at X_BC·Δ when the
-    // robot grinds it while the plan is made for the pose perception gave. The simulated part
-    // stays where it was scanned, so the robot runs the plan for X_BC_est·Δ⁻¹ (X_BC_plan) instead: the same
-    // motion of the burr relative to the part (the arm's own joints differ by the offset).
-    const Pose X_BC_plan = setup.spec.X_WB.inverse() * setup.spec.X_WM * X_CM_est.inverse() *
-                           sc.faults.part_offset_C.inverse();
-    double vmax = 0, amax = 0, manip = 1e300, total_time = 0, length = 0;
-    int planned = 0, failed = 0, skipped = 0, tool_changes = 0, path_pieces = 0;
-    std::string first_failure;
-    json plans = json::array();
-    for (std::size_t k = 0; k < det.paths.size(); ++k) {
-      const auto& p = det.paths[k];
-      const planner::GrindPath gp = grind_path_of(p);
-      std::vector<planner::GrindResult> pieces(1);
-      try {
-        pieces = plan_in_pieces(sc.robot, X_BC_plan, gp, sc.grind, kMaxPieces);
-        // A hole too narrow for the mounted burr: the largest burr of the rack that fits.
-        if (pieces.front().status == planner::GrindStatus::kToolTooLarge) {
-          std::vector<double> rack = sc.tool_rack;
-          std::sort(rack.rbegin(), rack.rend());
-          for (const double r : rack) {
-            if (r >= sc.robot.tool.radius) continue;
-            RobotModel smaller = sc.robot;
-            smaller.tool.radius = r;
-            auto ps = plan_in_pieces(smaller, X_BC_plan, gp, sc.grind, kMaxPieces);
-            if (ps.front().status == planner::GrindStatus::kToolTooLarge) continue;
-            spdlog::info("path {}: burr of radius {:.1f} mm from the tool rack ({})", k, r * 1e3,
-                         ps.front().ok() ? "planned" : ps.front().message);
-            tool_changes += ps.front().ok();
-            pieces = std::move(ps);
-            break;
-          }
-        }
-      } catch (const ArgumentError& e) {
-        pieces.assign(1, planner::GrindResult{});
-        pieces.front().status = planner::GrindStatus::kDiscontinuous;
-        pieces.front().message = std::string("path rejected: ") + e.what();
-      }
-      const planner::GrindResult& g = pieces.front();
-      json pj = {{"path", k}, {"status", planner::to_string(g.status)}, {"message", g.message}};
-      if (pieces.size() > 1) {
-        pj["pieces"] = pieces.size();
-        spdlog::info("path {}: ground in {} pieces (the wrist cannot follow it in one go)", k, pieces.size());
-      }
-      if (g.ok()) {
-        ++planned;
-        for (std::size_t piece = 0; piece < pieces.size(); ++piece) {
-          const planner::GrindResult& gk = pieces[piece];
-          ++path_pieces;
-          vmax = std::max(vmax, gk.max_joint_velocity_ratio);
-          amax = std::max(amax, gk.max_joint_accel_ratio);
-          manip = std::min(manip, gk.min_manipulability);
-          total_time += gk.total_time;
-          length += gk.cut_length;
-          pj["time_s"] = pj.value("time_s", 0.0) + gk.total_time;
-          pj["cut_length_m"] = pj.value("cut_length_m", 0.0) + gk.cut_length;
-          planned_paths.push_back({k, gk});
-          if (!write) continue;
-          // path_K, then path_K_2, path_K_3 for the further pieces of a path ground in pieces.
-          const std::string name = "path_" + std::to_string(k) + (piece ? "_" + std::to_string(piece + 1) : "");
-          const std::string pd = (dir / "plan" / name).string();
-          // The joint plots belong to the report (--no-report skips them).
-          const std::string csv = planner::trajectory_csv(gk);
-          planner::write_grind_outputs(gk, pd, opt.report, csv);
-          // The robot program a real KUKA controller would run (frames declared in it).
-          planner::ProgramParams pp;
-          pp.name = "flashtwin_" + name;
-          try {
-            planner::export_program_file(sc.robot, gk.trajectory, pp, pd);
-          } catch (const ArgumentError& e) {
-            spdlog::warn("{}: no KRL program: {}", name, e.what());
-          }
-          if (planned == 1 && piece == 0) write_text_file((dir / "trajectory.csv").string(), csv);
-        }
-      } else if (g.status == planner::GrindStatus::kToolTooLarge) {
-        // Not a failure of the plan: this tool cannot do it (a real cell drills such holes or
-        // changes the burr); reported and counted apart.
-        ++skipped;
-        spdlog::info("path {} skipped: {}", k, g.message);
-      } else {
-        ++failed;
-        if (first_failure.empty()) first_failure = "path " + std::to_string(k) + ": " + g.message;
-      }
-      plans.push_back(pj);
-    }
-    planning_s = seconds_since(t_plan);
-    m["trajectory.paths_planned"] = planned;
-    m["trajectory.paths_failed"] = failed;
-    m["trajectory.paths_skipped_tool_too_large"] = skipped;
-    m["trajectory.paths_with_rack_tool"] = tool_changes;
-    m["trajectory.path_pieces"] = path_pieces;  // grinding motions: a path ground in pieces counts each
-    m["trajectory.max_joint_velocity_ratio"] = vmax;
-    m["trajectory.max_joint_accel_ratio"] = amax;
-    m["trajectory.min_manipulability"] = finite_or_null(planned ? manip : NAN);
-    m["trajectory.total_time_s"] = total_time;
-    m["trajectory.cut_length_m"] = length;
-    if (!first_failure.empty()) m["trajectory.first_failure"] = first_failure;
-    if (write) write_text_file((dir / "plans.json").string(), plans.dump(1) + "\n");
-    if (failed > 0) {
-      out.exit_code = 1;
-      out.verdict = std::to_string(failed) + " of " + std::to_string(det.paths.size()) +
-                    " path(s) could not be planned (" + first_failure + ")";
-    }
-  }
+  Plans plans;
+  if (!out.refused && !det.paths.empty()) plans = plan_setup(sc, setup, perc, opt, dir, m);
+  const double planning_s = plans.time_s;
+  const std::vector<PlannedPath>& planned_paths = plans.paths;
+  // With a second setup to come, what this one cannot reach is left for it (deferred).
+  const bool second = sc.placement.turn_over && !out.refused && sc.execution.enabled;
+  const auto fail_plans = [&out](const Plans& p, std::size_t paths, const std::string& setup_name) {
+    if (p.failed == 0 || out.exit_code != 0) return;
+    out.exit_code = 1;
+    out.verdict = setup_name + std::to_string(p.failed) + " of " + std::to_string(paths) +
+                  " path(s) could not be planned (" + p.first_failure + ")";
+  };
+  if (!second) fail_plans(plans, det.paths.size(), "");
 
   // --- Execution: every planned path runs in MuJoCo while the process model grinds the
-  // casting's material (the simulated world, fins included), then the part is scanned again.
+  // casting's material (the simulated world, fins included); a part turned over
+  // (placement.turn_over) is scanned, perceived, planned and ground again in its second setup;
+  // then the part is scanned again.
   double execution_s = 0;
   ExecutionSummary& exec_summary = out.execution;
-  if (!out.refused && sc.execution.enabled && !planned_paths.empty()) {
+  if (!out.refused && sc.execution.enabled && (!planned_paths.empty() || second)) {
     progress(opt, "execution", 0.6);
     const auto t_exec = Clock::now();
     std::unique_ptr<VideoRecorder> video;
@@ -627,19 +860,65 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
       hook = [&video](const mjModel* mm, mjData* d, double t, const sim::MaterialGrid& grid,
                       std::size_t path) { video->on_step(mm, d, t, grid, path); };
     }
-    exec_summary = execute_plans(sc, ss, planned_paths, m, hook);
+    Execution exec(sc, setup.casting);
+    exec.run(ss, planned_paths, hook);
+    const ScenarioScan* last_scan = &ss;
+    Pose last_X_CM_est = perc.X_CM_est;
+    std::optional<SecondSetup> s2;
+    if (second && !exec.failed()) {
+      execution_s += seconds_since(t_exec);
+      const WorkLeft left = work_left(ss, perc, plans);
+      m["setup1.unseen_surface_fraction"] = left.unseen_fraction;
+      m["setup1.removal.flash_removed_fraction"] = sim::analyze_residual(exec.grid()).flash_removed_fraction;
+      s2 = second_setup(sc, setup, left, exec, cell_dir, dir, opt);
+      const auto t_exec2 = Clock::now();
+      if (video) video->new_setup();
+      exec.run(s2->scan, s2->plans.paths, hook, det.paths.size());
+      execution_s += seconds_since(t_exec2);
+      const bool confident2 = s2->perception.registration.confident;
+      if (confident2) {
+        last_scan = &s2->scan;
+        last_X_CM_est = s2->perception.X_CM_est;
+      }
+      // The part's figures count both setups: the roots either setup saw and found.
+      std::vector<Vec3> seen = flash_points_seen_C(ss), seen2 = flash_points_seen_C(s2->scan);
+      seen.insert(seen.end(), seen2.begin(), seen2.end());
+      m["scan.unseen_parting_fraction"] = unseen_root_fraction(true_roots(setup.casting), seen);
+      std::vector<Curve> found = curves_of(det), found2 = curves_of(s2->perception.detection);
+      found.insert(found.end(), found2.begin(), found2.end());
+      if (det.ran && s2->perception.detection.ran)
+        score_detection(det, scan, found, true_roots(setup.casting), m);
+      merge_second_setup(s2->metrics, m);
+      // The first setup's unplanned paths were the second's to grind: what fails is what the
+      // second could not plan (all of the first's when the second found no pose).
+      m["trajectory.paths_deferred"] = plans.failed;
+      if (confident2) {
+        m["trajectory.paths_failed"] = s2->plans.failed;
+        fail_plans(s2->plans, s2->perception.detection.paths.size(), "second setup: ");
+      } else {
+        spdlog::warn("second setup: registration not confident ({}): nothing ground in it",
+                     s2->perception.registration.message);
+        m["trajectory.paths_failed"] = plans.failed;
+        fail_plans(plans, det.paths.size(), "");
+      }
+    } else {
+      execution_s += seconds_since(t_exec);
+      fail_plans(plans, det.paths.size(), "");
+    }
+    const auto t_fin = Clock::now();
+    exec_summary = exec.finish(m);
     if (video) {
       m["video.frames"] = video->finish();
       m["video.speedup"] = video->speedup();
     }
-    execution_s = seconds_since(t_exec);
+    execution_s += seconds_since(t_fin);
     if (exec_summary.failed && out.exit_code == 0) {
       out.exit_code = 1;
       out.verdict = exec_summary.failure;
     }
     if (sc.execution.rescan && !exec_summary.failed) {
       progress(opt, "re-scan", 0.85);
-      rescan_after(sc, ss, X_CM_est, exec_summary, m);
+      rescan_after(sc, *last_scan, last_X_CM_est, exec_summary, m);
     }
   }
 
@@ -661,12 +940,13 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     }
   }
   if (!out.refused && out.exit_code == 0) {
-    if (det.paths.empty()) {
+    if (!exec_summary.ran && det.paths.empty()) {
       out.verdict = "nothing to grind";
     } else if (exec_summary.ran) {
       std::ostringstream os;
-      os << std::fixed << std::setprecision(1) << "ground " << planned_paths.size()
-         << " path(s): " << exec_summary.residual.flash_removed_fraction * 100
+      os << std::fixed << std::setprecision(1) << "ground " << m.value("execution.paths_executed", 0)
+         << " path(s)" << (second ? " in two setups" : "") << ": "
+         << exec_summary.residual.flash_removed_fraction * 100
          << " % of the flash removed, highest residual " << std::setprecision(2)
          << exec_summary.residual.residual_flash_max * 1e3 << " mm, deepest gouge "
          << exec_summary.residual.gouge_max_depth * 1e3 << " mm";

@@ -312,6 +312,9 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
       pl.xy_range = p.get_double("xy_range", 0.0, 1.0, pl.xy_range);
       pl.random_tilt = p.get_bool("tilt", pl.random_tilt);
       if (pl.random_tilt && !pl.random) p.fail("expected tilt only together with random: true");
+      pl.turn_over = p.get_bool("turn_over", pl.turn_over);
+      if (pl.turn_over && !pl.random)
+        p.fail("expected turn_over only together with random: true (a fixture holds the part one way up)");
     }
     const Vec3& ts = cell.table_size;
     if (std::abs(pl.x) > ts.x() / 2 || std::abs(pl.y) > ts.y() / 2)
@@ -549,6 +552,27 @@ CellSetup setup_cell(const Scenario& sc) {
   } catch (const ConfigError& e) {
     if (sc.file.empty()) throw;
     throw ConfigError(sc.file + ": " + e.what());
+  }
+  return s;
+}
+
+CellSetup turned_over(const Scenario& sc, const CellSetup& first, sim::Casting now, const Vec3& up_C) {
+  if (!(up_C.norm() > 0.5)) throw ArgumentError("turned_over: expected a unit direction to turn up");
+  CellSetup s;
+  s.casting = std::move(now);
+  s.spec = first.spec;
+  // Its own stream (the first placement's is seed·k + 3).
+  Rng rng(sc.seed * 0xD1B54A32D192ED03ULL + 5);
+  const double x = rng.uniform(-sc.placement.xy_range, sc.placement.xy_range);
+  const double y = rng.uniform(-sc.placement.xy_range, sc.placement.xy_range);
+  const double yaw = rng.uniform(-M_PI, M_PI);
+  const Mat3 R = Eigen::AngleAxisd(yaw, Vec3::UnitZ()).toRotationMatrix() *
+                 Eigen::Quaterniond::FromTwoVectors(up_C.normalized(), Vec3::UnitZ()).toRotationMatrix();
+  s.spec.X_WC = sim::rest_on_table(s.spec, s.casting.nominal, x, y, R);
+  try {
+    sim::check_cell_layout(s.spec, s.casting.nominal);
+  } catch (const ConfigError& e) {
+    throw ConfigError((sc.file.empty() ? std::string() : sc.file + ": ") + "the part turned over: " + e.what());
   }
   return s;
 }

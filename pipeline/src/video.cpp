@@ -191,6 +191,15 @@ void VideoRecorder::on_step(const mjModel* m, mjData* d, double t, const sim::Ma
   if (next_t_ < t) next_t_ = t + speedup_ / opt_.fps;
 }
 
+void VideoRecorder::new_setup() {
+  renderer_.reset();
+  if (model_) mj_deleteModel(model_);
+  model_ = nullptr;
+  flash_sample_C_.clear();
+  have_view_ = false;
+  last_t_ = -1;
+}
+
 std::size_t VideoRecorder::finish() {
   if (ffmpeg_) {
     const int rc = ffmpeg_->finish();

@@ -86,6 +86,8 @@ std::vector<SceneMesh> cell_background(const std::string& mjcf_path, const std::
   return scene;
 }
 
+}  // namespace
+
 std::uint64_t cell_key(const Vec3& p, double cell) {
   const auto u = [cell](double v) {
     return static_cast<std::uint64_t>(std::llround(std::floor(v / cell)) + (1LL << 20)) & 0x1FFFFF;
@@ -93,22 +95,14 @@ std::uint64_t cell_key(const Vec3& p, double cell) {
   return (u(p.x()) << 42) | (u(p.y()) << 21) | u(p.z());
 }
 
-/// What a plan must see, in {C}: one CAD surface sample per cell that faces up or sideways in
-/// the world (samples about half a cell apart on each triangle, the first in each cell kept),
-/// with its normal; and for each sideways sample a probe `probe` off the wall along its normal
-/// (zero normal), where a fin standing out of the wall shows its face next to the root.
-struct Targets {
-  std::vector<Vec3> points_C, normals_C;
-  std::size_t surface = 0;  // the first `surface` entries are on the CAD, the rest probes
-};
-
-Targets plan_targets(const TriangleMesh& cad_C, const Mat3& R_WC, double cell, double probe) {
+SurfaceSamples surface_samples(const TriangleMesh& cad_C, double cell,
+                               const std::function<bool(const Vec3&)>& skip) {
   std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed;  // (cell, sample)
   std::vector<Vec3> pts, nrm;
   const double step = 0.5 * cell;
   for (std::size_t t = 0; t < cad_C.triangles.size(); ++t) {
     const Vec3 n = cad_C.triangle_normal(t);
-    if ((R_WC * n).z() < -0.5) continue;  // faces the table
+    if (skip && skip(n)) continue;
     const auto& tri = cad_C.triangles[t];
     const Vec3 a = cad_C.vertices[static_cast<std::size_t>(tri[0])];
     const Vec3 b = cad_C.vertices[static_cast<std::size_t>(tri[1])];
@@ -124,12 +118,33 @@ Targets plan_targets(const TriangleMesh& cad_C, const Mat3& R_WC, double cell, d
       }
   }
   std::stable_sort(keyed.begin(), keyed.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
-  Targets T;
+  SurfaceSamples S;
   for (std::size_t i = 0; i < keyed.size(); ++i) {
     if (i > 0 && keyed[i].first == keyed[i - 1].first) continue;
-    T.points_C.push_back(pts[keyed[i].second]);
-    T.normals_C.push_back(nrm[keyed[i].second]);
+    S.points_C.push_back(pts[keyed[i].second]);
+    S.normals_C.push_back(nrm[keyed[i].second]);
   }
+  return S;
+}
+
+namespace {
+
+/// What a plan must see, in {C}: one CAD surface sample per cell that faces up or sideways in
+/// the world (samples about half a cell apart on each triangle, the first in each cell kept),
+/// with its normal; and for each sideways sample a probe `probe` off the wall along its normal
+/// (zero normal), where a fin standing out of the wall shows its face next to the root.
+struct Targets {
+  std::vector<Vec3> points_C, normals_C;
+  std::size_t surface = 0;  // the first `surface` entries are on the CAD, the rest probes
+};
+
+Targets plan_targets(const TriangleMesh& cad_C, const Mat3& R_WC, double cell, double probe) {
+  // Not what faces the table.
+  const SurfaceSamples S =
+      surface_samples(cad_C, cell, [&R_WC](const Vec3& n) { return (R_WC * n).z() < -0.5; });
+  Targets T;
+  T.points_C = S.points_C;
+  T.normals_C = S.normals_C;
   T.surface = T.points_C.size();
   for (std::size_t i = 0; i < T.surface; ++i) {
     if (std::abs((R_WC * T.normals_C[i]).z()) > 0.5) continue;  // not a wall

@@ -1,7 +1,8 @@
 #pragma once
 // The closed loop after planning: the planned grinding motions run one after another on the
 // MuJoCo cell while the process model grinds the casting's material (one voxel grid for the
-// whole run), then the ground part is scanned again and perception looks for flash left over.
+// whole run, over every setup of the part), then the ground part is scanned again and
+// perception looks for flash left over.
 // Writes the execution.*, force.*, removal.*, sim.* and rescan.* metrics.
 #include <cstddef>
 #include <functional>
@@ -14,6 +15,7 @@
 
 #include "flashtwin/core/transform.hpp"
 #include "flashtwin/planner/grind_planner.hpp"
+#include "flashtwin/sim/casting.hpp"
 #include "flashtwin/sim/executor.hpp"
 #include "flashtwin/sim/process.hpp"
 
@@ -38,6 +40,9 @@ struct ExecutionSummary {
   std::vector<double> sensor_force;       ///< [N] |flange F/T force| (0 without the sensor)
   std::vector<Vector6> q;                 ///< [rad] executed joint positions (the 3D view)
   std::vector<int> path;                  ///< index of the detected path each row belongs to
+                                          ///< (a second setup's follow the first's)
+  std::vector<int> setup;                 ///< the setup each row belongs to (0, 1)
+  std::vector<Pose> X_CB;                 ///< per setup: the robot base in {C} (true placement)
   double target_force = 0;                ///< [N]
   sim::ResidualReport residual;
   /// The material after grinding (residual and gouge maps are read from it; null when
@@ -53,9 +58,44 @@ struct ExecutionSummary {
 using FrameHook = std::function<void(const mjModel* model, mjData* data, double t,
                                      const sim::MaterialGrid& grid, std::size_t path)>;
 
-/// Runs the planned paths (in order, each from rest at its first sample: moves between paths
-/// are not simulated), fills the metrics and returns the logs.
-/// @throws the executor's ArgumentError/InputError (bad parameters, model names).
+/// The closed loop's material and logs over one or more setups of the part: each setup's
+/// planned paths run on that setup's MuJoCo cell (the casting where that setup put it) against
+/// the casting's one voxel grid, kept in {C}, so what one setup ground stays ground in the next.
+class Execution {
+ public:
+  /// The grid of `casting` (its nominal body and fins) with the scenario's material settings.
+  /// @throws ArgumentError for bad material parameters.
+  Execution(const Scenario& scenario, const sim::Casting& casting);
+
+  /// Runs one setup's planned paths, in order, each from rest at its first sample (moves between
+  /// paths are not simulated). Logged path indices are the plans' own plus `path_offset` (a
+  /// second setup's paths follow the first's). Stops at a path whose simulation went unstable
+  /// (failed() then). @throws the executor's ArgumentError/InputError (bad parameters, names).
+  void run(const ScenarioScan& scan, const std::vector<PlannedPath>& plans,
+           const FrameHook& frame_hook = {}, std::size_t path_offset = 0);
+
+  bool failed() const { return summary_.failed; }
+  const sim::MaterialGrid& grid() const { return *grid_; }
+
+  /// The part as it stands now: `casting`'s nominal body with what is left of its flash as one
+  /// fin (the voxel surface of the remaining flash, no root polyline), for scanning it again.
+  sim::Casting casting_now(const sim::Casting& casting) const;
+
+  /// Analyses the residual and writes the execution.*, force.*, removal.* and sim.* metrics
+  /// over every setup run; returns the logs and the material.
+  ExecutionSummary finish(nlohmann::ordered_json& m);
+
+ private:
+  const Scenario& sc_;
+  std::shared_ptr<sim::MaterialGrid> grid_;
+  ExecutionSummary summary_;
+  double sim_time_ = 0, wall_ = 0, track_sq_ = 0, track_max_ = 0, track_rot_max_ = 0;
+  double contact_ = 0, f_sum_ = 0, f_sq_ = 0, f_max_ = 0, limit_excess_ = 0;
+  std::size_t track_n_ = 0, violations_ = 0, clamped_ = 0, steps_ = 0, executed_ = 0, force_stops_ = 0;
+  std::string status_ = "ok";
+};
+
+/// One setup: Execution(scenario, scan.setup.casting), run(scan, plans, frame_hook), finish(m).
 ExecutionSummary execute_plans(const Scenario& scenario, const ScenarioScan& scan,
                                const std::vector<PlannedPath>& plans, nlohmann::ordered_json& m,
                                const FrameHook& frame_hook = {});

@@ -25,6 +25,10 @@ struct Placement {
   bool random = false;           ///< draw x, y within ±xy_range and yaw in [-π, π) by the seed
   double xy_range = 0.06;        ///< [m]
   bool random_tilt = false;      ///< with random: any orientation in SO(3)
+  /// with random: after grinding, the part is turned over for a second setup (turned_over)
+  /// and scanned, perceived, planned and ground again: the faces that were turned towards the
+  /// table face up then.
+  bool turn_over = false;
 };
 
 /// One bound of the scenario's `expect:` block: a metric within [lo, hi], or a flag equal to
@@ -147,5 +151,13 @@ struct CellSetup {
 /// Generates the casting and places it (deterministic in the scenario seed).
 /// @throws InputError/ArgumentError from the casting generator (bad mesh, impossible params).
 CellSetup setup_cell(const Scenario& scenario);
+
+/// The second setup of a part turned over (placement.turn_over): `now`, the part as the first
+/// setup left it, laid down with `up_C` (a direction in {C}: where the cell wants to work next)
+/// facing up, turned about the table normal by a yaw drawn by the seed, at a position drawn
+/// within placement.xy_range, resting on the table. Perception is told nothing of the new pose.
+/// @throws ConfigError when the turned part does not fit the cell (check_cell_layout).
+CellSetup turned_over(const Scenario& scenario, const CellSetup& first, sim::Casting now,
+                      const Vec3& up_C);
 
 }  // namespace flashtwin::pipeline

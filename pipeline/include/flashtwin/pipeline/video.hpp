@@ -51,6 +51,10 @@ class VideoRecorder {
   void on_step(const mjModel* model, mjData* data, double t, const sim::MaterialGrid& grid,
                std::size_t path = 0);
 
+  /// The part has been placed anew (a second setup, its own MuJoCo model): the next frame
+  /// builds the scene from the model it is given, the casting's pose read again.
+  void new_setup();
+
   /// Closes the stream; returns the number of frames. @throws IoError when ffmpeg failed.
   std::size_t finish();
 

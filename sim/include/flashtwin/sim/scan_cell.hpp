@@ -2,6 +2,8 @@
 // Scanning a written cell: the cell's geometry posed from MuJoCo's state (robot at a
 // keyframe), the casting and its flashes as exact meshes, scanned with Embree. MuJoCo-free
 // interface for the pipeline and the CLI.
+#include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -45,6 +47,20 @@ struct ViewPlanParams {
     line.range_max = 0.6;
   }
 };
+
+/// CAD surface samples in {C}: one per `cell`-sized cube (samples about half a cell apart on
+/// each triangle, the first in each cube kept), each with its triangle's outward normal.
+struct SurfaceSamples {
+  std::vector<Vec3> points_C, normals_C;
+};
+
+/// Samples `cad_C`'s surface (SurfaceSamples), leaving out the triangles whose outward normal
+/// `skip` is true for (none when empty). Deterministic.
+SurfaceSamples surface_samples(const TriangleMesh& cad_C, double cell,
+                               const std::function<bool(const Vec3&)>& skip = {});
+
+/// The key of the `cell`-sized cube of {C} holding p (21 bits per axis, ±2^20 cells).
+std::uint64_t cell_key(const Vec3& p, double cell);
 
 struct ViewPlan {
   std::vector<ScanView> views;
