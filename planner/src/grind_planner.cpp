@@ -711,6 +711,15 @@ Pose grind_tool_pose(const Vec3& p, const Vec3& n, const Vec3& t, const Vec3& f,
   const Vec3 z = -w.normalized();
   // Smallest axis offset keeping the whole cutting length out of the wall plane.
   const double c = z.dot(n);
+  // Tilted (c ≠ 0), the burr touches the wall plane only at one end of its cutting length and
+  // stands off it at the fin by that end's axial distance from the fin × |c|: with the fin
+  // halfway along a 20 mm burr, 0.46 mm at 0.046 rad and 1.3 mm at 0.13 rad (cover 9148, 9103:
+  // that much flash left along the stretch). The burr slides along its axis until the end that
+  // touches comes within kEndMargin of the fin (the fin's half thickness and some), the
+  // stand-off then kEndMargin·|c|; on the way there no more than kStandoff (continuous in c).
+  constexpr double kEndMargin = 1e-3, kStandoff = 0.05e-3;
+  if (c > 1e-12) tip_depth = std::max(tip_depth, std::min(length - kEndMargin, length - kStandoff / c));
+  else if (c < -1e-12) tip_depth = std::min(tip_depth, std::max(kEndMargin, kStandoff / -c));
   const double off = extra_offset + radius * std::sqrt(std::max(0.0, 1 - c * c)) -
                      std::min(tip_depth * c, (tip_depth - length) * c);
   if (axis_offset) *axis_offset = off;
