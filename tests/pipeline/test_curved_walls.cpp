@@ -138,3 +138,16 @@ TEST(CurvedWalls, AFinHighOnAFlatDomeIsFound) {
   EXPECT_GE(m["path.coverage"].get<double>(), 0.98);
   EXPECT_LE(m["path.rmse_mm"].get<double>(), 0.3);
 }
+
+// Cover seed 9103: where the wrist nears a singular pose and neither a spin nor a lead frees
+// it, the planner tilts the burr (here up to 0.13 rad). Tilted, the burr touches the wall at
+// one end of its cutting length only; with the fin halfway along the 20 mm burr it stood
+// 10 mm × the tilt off the wall at the fin, and left that much flash along the stretch
+// (1.43 mm). The burr now slides along its axis until its touching end is within 1 mm of the
+// fin.
+TEST(CurvedWalls, ATiltedBurrSlidesSoItsTouchingEndMeetsTheFin) {
+  const auto m = ftest::scenario_metrics("cover", 9103, true);
+  EXPECT_LT(m["removal.residual_flash_max_mm"].get<double>(), 0.2);
+  EXPECT_GT(m["removal.flash_removed_fraction"].get<double>(), 0.99);
+  EXPECT_LT(m["removal.gouge_max_mm"].get<double>(), 0.1);
+}
