@@ -707,6 +707,9 @@ struct SecondSetup {
   Perception perception;
   Plans plans;
   json metrics;  ///< its own scan.*, registration.*, segmentation.*, path.*, trajectory.*
+  bool ran = false;   ///< scanned and perceived (false: the turned part did not fit the cell)
+  std::string error;  ///< why it did not run
+  double time_s = 0;  ///< scan, perception and planning
 };
 
 // The part, as the first setup left it, is turned over (turned_over), scanned (a survey and the
@@ -717,8 +720,18 @@ SecondSetup second_setup(const Scenario& sc, const CellSetup& first, const WorkL
                          const RunOptions& opt) {
   SecondSetup s;
   progress(opt, "second setup", 0.7);
-  const CellSetup setup = turned_over(sc, first, exec.casting_now(first.casting),
-                                     turn_up_direction(left, first.casting.nominal));
+  const auto t0 = Clock::now();
+  CellSetup setup;
+  try {
+    setup = turned_over(sc, first, exec.casting_now(first.casting),
+                        turn_up_direction(left, first.casting.nominal));
+  } catch (const ConfigError& e) {
+    // The first setup's work stands; the part is judged as it is.
+    s.error = e.what();
+    return s;
+  }
+  s.ran = true;
+  // A turned part has no nominal placement: the views are always planned from a survey.
   s.scan = scan_setup(sc, setup, (cell_dir / "setup2").string(), opt.threads, sc.scan.seed + 104729);
   scan_metrics(s.scan, s.metrics);
   s.perception = perceive(sc, s.scan, opt, s.metrics);
@@ -729,15 +742,27 @@ SecondSetup second_setup(const Scenario& sc, const CellSetup& first, const WorkL
   const fs::path out = dir.empty() ? fs::path() : dir / "setup2";
   if (!out.empty()) write_paths(out.string(), det);
   if (!det.paths.empty()) s.plans = plan_setup(sc, setup, s.perception, opt, out, s.metrics);
+  s.time_s = seconds_since(t0);
   return s;
 }
 
-// A second setup's metrics go under "setup2."; the part's totals (planned and failed paths,
-// planning time and length, the worst joint-rate ratios) count both setups.
+// A second setup's metrics go under "setup2."; the part's totals count both setups: paths
+// planned (a root found in both counts twice), grinding motions, tool changes, planned time and
+// length, the worst joint-rate ratios and the least manipulability. Holes skipped as too narrow
+// and the first failure are the second setup's (it saw the part last).
 void merge_second_setup(const json& m2, json& m) {
   for (const auto& [key, v] : m2.items()) m["setup2." + key] = v;
+  for (const char* key : {"trajectory.paths_skipped_tool_too_large", "trajectory.first_failure"}) {
+    if (m2.contains(key)) m[key] = m2[key];
+    else m.erase(key);
+  }
+  if (m2.contains("trajectory.min_manipulability") && m2["trajectory.min_manipulability"].is_number()) {
+    const double v = m2["trajectory.min_manipulability"].get<double>();
+    const json& mine = m.contains("trajectory.min_manipulability") ? m["trajectory.min_manipulability"] : json();
+    m["trajectory.min_manipulability"] = mine.is_number() ? std::min(mine.get<double>(), v) : v;
+  }
   for (const char* key : {"trajectory.paths_planned", "trajectory.paths_failed",
-                          "trajectory.paths_skipped_tool_too_large", "trajectory.paths_with_rack_tool",
+                          "trajectory.paths_with_rack_tool",
                           "trajectory.path_pieces", "trajectory.total_time_s", "trajectory.cut_length_m"}) {
     if (!m2.contains(key)) continue;
     if (m2[key].is_number_integer() && (!m.contains(key) || m[key].is_number_integer()))
@@ -765,6 +790,9 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   if (write) ensure_directory(dir.string());
   m["scenario"] = sc.name;
   m["seed"] = sc.seed;
+  // A turned part has no nominal placement the cell could know (load_scenario refuses it too).
+  if (sc.placement.turn_over && !sc.placement.random)
+    throw ConfigError("casting.placement: expected turn_over only together with random: true");
   if (sc.faults.any()) {
     const double mm = sc.faults.part_offset_C.translation().norm() * 1e3;
     const double deg = Eigen::AngleAxisd(sc.faults.part_offset_C.linear()).angle() * 180 / M_PI;
@@ -841,6 +869,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   // then the part is scanned again.
   double execution_s = 0;
   ExecutionSummary& exec_summary = out.execution;
+  bool ground_twice = false;  // a second setup registered its part and ground what it planned
   if (!out.refused && sc.execution.enabled && (!planned_paths.empty() || second)) {
     progress(opt, "execution", 0.6);
     const auto t_exec = Clock::now();
@@ -850,6 +879,8 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
       double duration = 0;
       for (const auto& p : planned_paths)
         duration += p.second.total_time + sc.execution.exec.settle_time;
+      // The second setup's motions are not planned yet: as long again, and at least two minutes.
+      if (second) duration = std::max(2 * duration, 120.0);
       VideoOptions vo = opt.video;
       vo.camera = sc.video.camera;
       vo.length = sc.video.length;
@@ -871,34 +902,35 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
       m["setup1.unseen_surface_fraction"] = left.unseen_fraction;
       m["setup1.removal.flash_removed_fraction"] = sim::analyze_residual(exec.grid()).flash_removed_fraction;
       s2 = second_setup(sc, setup, left, exec, cell_dir, dir, opt);
-      const auto t_exec2 = Clock::now();
-      if (video) video->new_setup();
-      exec.run(s2->scan, s2->plans.paths, hook, det.paths.size());
-      execution_s += seconds_since(t_exec2);
-      const bool confident2 = s2->perception.registration.confident;
-      if (confident2) {
+      m["timing.setup2_s"] = s2->time_s;
+      ground_twice = s2->ran && s2->perception.registration.confident;
+      if (ground_twice) {
+        const auto t_exec2 = Clock::now();
+        if (video) video->new_setup();
+        exec.run(s2->scan, s2->plans.paths, hook, det.paths.size());
+        execution_s += seconds_since(t_exec2);
         last_scan = &s2->scan;
         last_X_CM_est = s2->perception.X_CM_est;
-      }
-      // The part's figures count both setups: the roots either setup saw and found.
-      std::vector<Vec3> seen = flash_points_seen_C(ss), seen2 = flash_points_seen_C(s2->scan);
-      seen.insert(seen.end(), seen2.begin(), seen2.end());
-      m["scan.unseen_parting_fraction"] = unseen_root_fraction(true_roots(setup.casting), seen);
-      std::vector<Curve> found = curves_of(det), found2 = curves_of(s2->perception.detection);
-      found.insert(found.end(), found2.begin(), found2.end());
-      if (det.ran && s2->perception.detection.ran)
+        // The part's roots either setup saw, and the paths either found (path.* of the
+        // segmentation and of the voxel filter stay the first setup's; setup2.* has its own).
+        std::vector<Vec3> seen = flash_points_seen_C(ss), seen2 = flash_points_seen_C(s2->scan);
+        seen.insert(seen.end(), seen2.begin(), seen2.end());
+        m["scan.unseen_parting_fraction"] = unseen_root_fraction(true_roots(setup.casting), seen);
+        std::vector<Curve> found = curves_of(det), found2 = curves_of(s2->perception.detection);
+        found.insert(found.end(), found2.begin(), found2.end());
         score_detection(det, scan, found, true_roots(setup.casting), m);
-      merge_second_setup(s2->metrics, m);
-      // The first setup's unplanned paths were the second's to grind: what fails is what the
-      // second could not plan (all of the first's when the second found no pose).
-      m["trajectory.paths_deferred"] = plans.failed;
-      if (confident2) {
+        merge_second_setup(s2->metrics, m);
+        // The first setup's unplanned paths were the second's to grind: what fails is what the
+        // second could not plan.
+        m["trajectory.paths_deferred"] = plans.failed;
         m["trajectory.paths_failed"] = s2->plans.failed;
         fail_plans(s2->plans, s2->perception.detection.paths.size(), "second setup: ");
       } else {
-        spdlog::warn("second setup: registration not confident ({}): nothing ground in it",
-                     s2->perception.registration.message);
-        m["trajectory.paths_failed"] = plans.failed;
+        const std::string why = s2->ran ? "registration not confident (" + s2->perception.registration.message + ")"
+                                        : s2->error;
+        spdlog::warn("second setup: {}: nothing ground in it", why);
+        for (const auto& [key, v] : s2->metrics.items()) m["setup2." + key] = v;
+        m["setup2.error"] = why;
         fail_plans(plans, det.paths.size(), "");
       }
     } else {
@@ -945,7 +977,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     } else if (exec_summary.ran) {
       std::ostringstream os;
       os << std::fixed << std::setprecision(1) << "ground " << m.value("execution.paths_executed", 0)
-         << " path(s)" << (second ? " in two setups" : "") << ": "
+         << " path(s)" << (ground_twice ? " in two setups" : "") << ": "
          << exec_summary.residual.flash_removed_fraction * 100
          << " % of the flash removed, highest residual " << std::setprecision(2)
          << exec_summary.residual.residual_flash_max * 1e3 << " mm, deepest gouge "
