@@ -1398,6 +1398,31 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
       res.feed_reductions.push_back(fr);
     }
   }
+  // The commanded motion itself, every period, against the ranges less half the margin (as
+  // timed): what the robot is sent must be what was checked (tilted 8011: 0.034 rad past joint
+  // 5's limit at 1 ms samples of a hole path whose samples and timing grid were inside; the
+  // executor clamped the joint, the burr left its path and gouged 0.85 mm).
+  for (std::size_t k = 0; k < res.trajectory.q.size(); ++k) {
+    const Vector6& q = res.trajectory.q[k];
+    for (int j = 0; j < kNumJoints; ++j) {
+      const JointLimits& L = robot_timing.limits[static_cast<std::size_t>(j)];
+      const double excess = std::max(q[j] - L.upper, L.lower - q[j]);
+      if (excess <= 1e-9) continue;
+      // The path sample nearest the period's path position.
+      std::size_t i = 0;
+      while (i + 1 < res.samples.size() && res.samples[i + 1].s <= res.trajectory.s[k]) ++i;
+      res.status = GrindStatus::kJointLimit;
+      res.failed_sample = static_cast<int>(i);
+      res.failed_path_index = res.samples[i].path_index;
+      res.failed_pass = res.samples[i].pass;
+      res.failed_joint = j;
+      res.failed_excess = excess;
+      res.message = where(i) + strf(": the timed motion at %.3f s takes joint %d %.4f rad past its "
+                                    "range less half the margin", res.trajectory.t[k], j + 1, excess);
+      res.trajectory = JointTrajectory{};
+      return res;
+    }
+  }
   res.total_time = res.trajectory.duration();
   res.tcp_B.reserve(res.trajectory.size());
   for (const auto& q : res.trajectory.q) res.tcp_B.push_back(fk_tool(robot, q));

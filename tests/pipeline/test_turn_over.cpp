@@ -8,6 +8,7 @@
 #include "flashtwin/core/errors.hpp"
 #include "flashtwin/pipeline/run.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
+#include "scenario_run.hpp"
 #include "test_util.hpp"
 
 using namespace flashtwin;
@@ -55,4 +56,17 @@ TEST(TurnOver, ATiltedPlateTheArmCannotReachIsGroundInASecondSetup) {
   EXPECT_EQ(m["execution.paths_stopped_force_limit"].get<int>(), 0);
   EXPECT_GT(m["path.coverage"].get<double>(), 0.95);
   EXPECT_EQ(r.exit_code, 0) << r.verdict;
+}
+
+// Tilted 8011: a hole path's timed motion, sampled every period, took joint 5 0.034 rad past
+// its range while its path samples and its timing grid were inside; the executor clamped the
+// joint, the burr left its path and gouged 0.85 mm. The planner now checks the commanded motion
+// itself: that plan fails in the first setup and the second setup grinds the hole.
+TEST(TurnOver, APlanWhoseCommandedMotionLeavesAJointRangeIsNotRun) {
+  const auto r = ftest::scenario_run("tilted", 8011, true);
+  const auto& m = r.metrics;
+  EXPECT_EQ(m["execution.clamped_steps"].get<int>(), 0);
+  EXPECT_EQ(m["execution.joint_limit_violations"].get<int>(), 0);
+  EXPECT_LT(m["removal.gouge_max_mm"].get<double>(), 0.1);
+  EXPECT_GE(m["trajectory.paths_deferred"].get<int>(), 1);
 }
