@@ -850,20 +850,14 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
           arc.rms < 0.1 * arc.radius)
         hole_r = arc.radius;
     }
-    // The fin ring stands `fin_height` in from the wall: the burr enters through the opening it
-    // leaves. A burr wider than the opening cuts the ring on the far side of the hole as well as
-    // at its first pass, all of it in one axial plunge (tilted 8006, 8021: a 4 mm burr in
-    // 4.5-5 mm holes with 1.5-2 mm rings, 2800 N, protective stops and 0.6-0.9 mm gouges).
-    const double opening = hole_r - path.fin_height;
-    if (hole_r < 1e299 && opening < radius + kClearance) {
+    if (hole_r < radius + kClearance) {
       GrindResult res;
       res.status = GrindStatus::kToolTooLarge;
-      res.message = strf("hole of radius %.2f mm (%s) with its fin ring %.2f mm high leaves an "
-                         "opening too narrow for the burr of radius %.2f mm (+%.1f mm room to "
-                         "step in): needs a smaller burr",
+      res.message = strf("hole of radius %.2f mm (%s) is too narrow for the burr of radius "
+                         "%.2f mm (+%.1f mm room to step in): needs a smaller burr",
                          hole_r * 1e3,
                          path.closed ? "nearest root point to its centre" : "circle through the arc",
-                         path.fin_height * 1e3, radius * 1e3, kClearance * 1e3);
+                         radius * 1e3, kClearance * 1e3);
       return res;
     }
   }

@@ -596,28 +596,30 @@ TEST(GrindPlanner, LeadInAndOutKeepTheBurrOffTheWallWhileItPlungesAndLifts) {
   // ring in one plunge along the wall, so a smaller burr is asked for.
   const GrindResult h = plan_grind(robot, X_BC, hole_circle(rad + 0.3e-3, 72), P);
   EXPECT_EQ(h.status, GrindStatus::kToolTooLarge) << h.message;
-  // A 4 mm ring fin in a hole 5 mm wider than the burr leaves an opening 1 mm wider than it: the
-  // burr enters through the opening, two roughing passes and the finishing pass flush; the
+  // A 4 mm ring fin in a hole 0.6 mm wider than the burr: the roughing pass takes all the room
+  // (the burr's axis on the hole's centre, no lead-in); the finishing pass runs flush, and the
   // lead-out steps off the whole lead clearance before the retract lifts.
-  GrindPath ring = hole_circle(rad + 5e-3, 72);
+  GrindPath ring = hole_circle(rad + 0.6e-3, 72);
   ring.fin_height = 0.004;
   const GrindResult f = plan_grind(robot, X_BC, ring, P);
   ASSERT_TRUE(f.ok()) << f.message;
-  ASSERT_EQ(f.passes, 3);
+  ASSERT_EQ(f.passes, 2);
+  EXPECT_NEAR(f.samples.front().axis_offset, rad + 0.6e-3, 1e-12);
   EXPECT_EQ(f.segments.back().kind, SampleKind::kRetract);
   for (std::size_t i = f.segments.back().first_sample; i < f.samples.size(); ++i)
     EXPECT_NEAR(f.samples[i].axis_offset, rad + P.lead_clearance, 1e-12) << i;
 }
 
-TEST(GrindPlanner, PassesInAHoleRunAtTheFeedOfTheContactOnTheWall) {
-  // A ring fin 3.5 mm high in a hole of radius r + 5 mm (the opening r + 1.5 mm lets the burr
-  // in): two roughing passes of 1.6 mm down to the finishing depth, then the finishing pass.
+TEST(GrindPlanner, PassesInAHoleStopAtItsCentre) {
+  // A ring fin 8 mm high in a hole of radius r + 3.5 mm: past an axis offset of 3.5 mm the
+  // burr's axis would cross the hole's centre, so the passes take 3.5 mm: two roughing passes
+  // of 1.6 mm down to the finishing depth, then the finishing pass.
   const RobotModel robot = ftest::ft6();
   const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
   const double r = robot.tool.radius;
   GrindParams P;
-  GrindPath ring = hole_circle(r + 5e-3, 72);
-  ring.fin_height = 3.5e-3;
+  GrindPath ring = hole_circle(r + 3.5e-3, 72);
+  ring.fin_height = 0.008;
   const GrindResult g = plan_grind(robot, X_BC, ring, P);
   ASSERT_TRUE(g.ok()) << g.message;
   ASSERT_EQ(g.passes, 3);
@@ -626,7 +628,7 @@ TEST(GrindPlanner, PassesInAHoleRunAtTheFeedOfTheContactOnTheWall) {
   EXPECT_EQ(g.pass_offsets[2], P.stock_allowance);
   // The feed is the contact's on the wall: the tool centre, on a circle of radius R − r − e,
   // moves slower by (R − r − e)/(R − e), and the timed TCP speed along the pass follows it.
-  const double R = r + 5e-3;
+  const double R = r + 3.5e-3;
   for (const GrindSegment& sg : g.segments) {
     if (sg.kind != SampleKind::kCut) continue;
     const double e = g.pass_offsets[static_cast<std::size_t>(sg.pass)];
@@ -641,25 +643,6 @@ TEST(GrindPlanner, PassesInAHoleRunAtTheFeedOfTheContactOnTheWall) {
   GrindPath line = wall_line(-0.05, 0.05, 0.005);
   line.fin_height = 0.008;
   EXPECT_EQ(plan_grind(robot, X_BC, line, P).passes, 5);
-}
-
-TEST(GrindPlanner, ABurrWiderThanTheOpeningOfAFinRingAsksForASmallerOne) {
-  // A burr wider than the opening a ring fin leaves in its hole (hole radius − fin height)
-  // would cut the ring on the far side of the hole too, all of it in one axial plunge (tilted
-  // 8006: a 4 mm burr in 4.95 mm holes with 1.5-2 mm rings, 2800 N, a protective stop): a
-  // smaller burr is asked for. The hole alone is wide enough for it.
-  const RobotModel robot = ftest::ft6();
-  const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
-  const double r = robot.tool.radius;
-  GrindPath ring = hole_circle(r + 3.5e-3, 72);
-  ring.fin_height = 0.0;
-  EXPECT_TRUE(plan_grind(robot, X_BC, ring).ok());
-  ring.fin_height = 3.2e-3;  // opening r + 0.3 mm: 0.2 mm short of the room to step in
-  const GrindResult g = plan_grind(robot, X_BC, ring);
-  EXPECT_EQ(g.status, GrindStatus::kToolTooLarge) << g.message;
-  EXPECT_NE(g.message.find("fin ring 3.20 mm high"), std::string::npos) << g.message;
-  ring.fin_height = 2.9e-3;  // opening r + 0.6 mm
-  EXPECT_TRUE(plan_grind(robot, X_BC, ring).ok());
 }
 
 TEST(GrindPlanner, RunOutIsShortenedWhereTheWallCurves) {

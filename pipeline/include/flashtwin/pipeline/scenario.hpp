@@ -110,9 +110,8 @@ struct Scenario {
   planner::GrindParams grind;             ///< `planning:` overrides
   /// `tool_rack:` radii [m] of the ball burrs the cell's tool changer holds besides the mounted
   /// one (same length): a path in a hole too narrow for the mounted burr is planned with the
-  /// largest rack burr that fits (a tool change in the job). Default: 8, 6 and 4 mm burrs (the
-  /// 4 mm one enters bolt holes of 4.5-5 mm radius through their 1.5-2 mm fin rings).
-  std::vector<double> tool_rack{0.004, 0.003, 0.002};
+  /// largest rack burr that fits (a tool change in the job). Default: 8 and 6 mm burrs.
+  std::vector<double> tool_rack{0.004, 0.003};
   ExecutionSettings execution;            ///< `execution:` and `process:` overrides
   /// `video:` how `flashtwin run --video` films the execution.
   struct VideoSettings {
