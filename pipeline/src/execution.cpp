@@ -55,8 +55,8 @@ std::string scalar_ply(const std::vector<Vec3>& pts, const std::vector<float>& v
   return out;
 }
 
-// The part as it stands after grinding: `casting`'s nominal body and what is left of its flash
-// (`remaining_C`, a voxel surface in {C}, of `volume` m^3) as one fin without a root.
+}  // namespace
+
 sim::Casting casting_with_residual(const sim::Casting& casting, const TriangleMesh& remaining_C,
                                    double volume) {
   sim::Casting now;
@@ -75,7 +75,6 @@ sim::Casting casting_with_residual(const sim::Casting& casting, const TriangleMe
   return now;
 }
 
-}  // namespace
 
 void write_material_maps(const std::string& dir, const sim::MaterialGrid& grid) {
   const MeshBvh& cad = grid.nominal();
@@ -176,11 +175,6 @@ void Execution::run(const ScenarioScan& ss, const std::vector<PlannedPath>& plan
       break;
     }
   }
-}
-
-sim::Casting Execution::casting_now(const sim::Casting& casting) const {
-  return casting_with_residual(casting, sim::remaining_flash_mesh(*grid_),
-                               sim::analyze_residual(*grid_).flash_volume_remaining);
 }
 
 ExecutionSummary Execution::finish(json& m) {

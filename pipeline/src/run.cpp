@@ -433,6 +433,21 @@ Perception perceive(const Scenario& sc, const ScenarioScan& ss, const RunOptions
   return p;
 }
 
+// Scoring (reads the truth): extracted paths against the true roots (path.count, path.coverage,
+// path.rmse_mm, ...).
+void score_paths(const std::vector<Curve>& extracted, const std::vector<Curve>& roots, json& m) {
+  const auto ps = score_path(extracted, roots);
+  m["path.count"] = extracted.size();
+  m["path.true_count"] = roots.size();
+  m["path.mean_mm"] = finite_or_null(ps.mean * 1000);
+  m["path.rmse_mm"] = finite_or_null(ps.rmse * 1000);
+  m["path.max_mm"] = finite_or_null(ps.max * 1000);
+  m["path.coverage"] = ps.coverage;
+  m["path.spurious_max_mm"] = finite_or_null(ps.spurious_max * 1000);
+  m["path.length_m"] = ps.path_length;
+  m["path.true_length_m"] = ps.true_length;
+}
+
 // Scoring (reads the truth): the segmentation against the scan's labels and the extracted
 // paths against the true roots (segmentation.*, path.*).
 void score_detection(const perception::DetectionResult& det, const sim::CellScan& scan,
@@ -449,16 +464,7 @@ void score_detection(const perception::DetectionResult& det, const sim::CellScan
   m["path.points_before_voxel"] = det.path_points_before;
   m["path.points_after_voxel"] = det.path_points_after;
   m["timing.path_voxel_ms"] = det.path_voxel_time_s * 1000;
-  const auto ps = score_path(extracted, roots);
-  m["path.count"] = extracted.size();
-  m["path.true_count"] = roots.size();
-  m["path.mean_mm"] = finite_or_null(ps.mean * 1000);
-  m["path.rmse_mm"] = finite_or_null(ps.rmse * 1000);
-  m["path.max_mm"] = finite_or_null(ps.max * 1000);
-  m["path.coverage"] = ps.coverage;
-  m["path.spurious_max_mm"] = finite_or_null(ps.spurious_max * 1000);
-  m["path.length_m"] = ps.path_length;
-  m["path.true_length_m"] = ps.true_length;
+  score_paths(extracted, roots, m);
 }
 
 std::vector<Curve> curves_of(const perception::DetectionResult& det) {
@@ -523,7 +529,6 @@ void write_plan_files(const Scenario& sc, const planner::GrindResult& g, const f
 struct Plans {
   std::vector<PlannedPath> paths;  ///< every grinding motion (a path in pieces: one per piece)
   std::vector<std::size_t> failed_paths;  ///< detected paths that could not be planned
-  int failed = 0;
   std::string first_failure;
   double time_s = 0;
 };
@@ -578,7 +583,6 @@ Plans plan_setup(const Scenario& sc, const CellSetup& setup, const Perception& p
       ++skipped;
       spdlog::info("path {} skipped: {}", k, g.message);
     } else {
-      ++out.failed;
       out.failed_paths.push_back(k);
       if (out.first_failure.empty()) out.first_failure = "path " + std::to_string(k) + ": " + g.message;
     }
@@ -586,7 +590,7 @@ Plans plan_setup(const Scenario& sc, const CellSetup& setup, const Perception& p
   }
   out.time_s = seconds_since(t0);
   m["trajectory.paths_planned"] = planned;
-  m["trajectory.paths_failed"] = out.failed;
+  m["trajectory.paths_failed"] = out.failed_paths.size();
   m["trajectory.paths_skipped_tool_too_large"] = skipped;
   m["trajectory.paths_with_rack_tool"] = tool_changes;
   m["trajectory.path_pieces"] = path_pieces;  // grinding motions: a path ground in pieces counts each
@@ -615,7 +619,6 @@ void scan_metrics(const ScenarioScan& ss, json& m) {
 /// What the cell knows is left to do on a part after a setup, in {C}.
 struct WorkLeft {
   double unseen_fraction = 0;  ///< share of the CAD surface no point of the scan came near
-  std::size_t paths_left = 0;  ///< detected paths it could not plan
   std::vector<Vec3> normals_C;  ///< outward normals where work is left (unseen surface, roots)
   std::vector<double> weights;  ///< [m^2] the surface each stands for
 };
@@ -649,7 +652,6 @@ WorkLeft work_left(const ScenarioScan& ss, const Perception& perc, const Plans& 
                       static_cast<double>(std::max<std::size_t>(1, S.points_C.size()));
   for (const std::size_t k : plans.failed_paths) {
     const auto& path = perc.detection.paths[k];
-    ++w.paths_left;
     for (std::size_t i = 0; i + 1 < path.points_C.size(); ++i) {
       w.normals_C.push_back(path.normals_C[i]);
       w.weights.push_back((path.points_C[i + 1] - path.points_C[i]).norm() * kRootBand);
@@ -707,30 +709,27 @@ struct SecondSetup {
   Perception perception;
   Plans plans;
   json metrics;  ///< its own scan.*, registration.*, segmentation.*, path.*, trajectory.*
-  bool ran = false;   ///< scanned and perceived (false: the turned part did not fit the cell)
-  std::string error;  ///< why it did not run
+  std::string error;  ///< why it did not run (the turned part did not fit the cell); empty: it ran
   double time_s = 0;  ///< scan, perception and planning
 };
 
 // The part, as the first setup left it, is turned over (turned_over), scanned (a survey and the
 // views planned from its pose), registered, searched for flash and planned for, exactly as in
 // the first setup; what is planned is ground on the same material (the caller runs it).
-SecondSetup second_setup(const Scenario& sc, const CellSetup& first, const WorkLeft& left,
-                         const Execution& exec, const fs::path& cell_dir, const fs::path& dir,
+SecondSetup second_setup(const Scenario& sc, const CellSetup& first, sim::Casting now,
+                         const WorkLeft& left, const fs::path& cell_dir, const fs::path& dir,
                          const RunOptions& opt) {
   SecondSetup s;
   progress(opt, "second setup", 0.7);
   const auto t0 = Clock::now();
   CellSetup setup;
   try {
-    setup = turned_over(sc, first, exec.casting_now(first.casting),
-                        turn_up_direction(left, first.casting.nominal));
+    setup = turned_over(sc, first, std::move(now), turn_up_direction(left, first.casting.nominal));
   } catch (const ConfigError& e) {
     // The first setup's work stands; the part is judged as it is.
     s.error = e.what();
     return s;
   }
-  s.ran = true;
   // A turned part has no nominal placement: the views are always planned from a survey.
   s.scan = scan_setup(sc, setup, (cell_dir / "setup2").string(), opt.threads, sc.scan.seed + 104729);
   scan_metrics(s.scan, s.metrics);
@@ -856,9 +855,9 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   // With a second setup to come, what this one cannot reach is left for it (deferred).
   const bool second = sc.placement.turn_over && !out.refused && sc.execution.enabled;
   const auto fail_plans = [&out](const Plans& p, std::size_t paths, const std::string& setup_name) {
-    if (p.failed == 0 || out.exit_code != 0) return;
+    if (p.failed_paths.empty() || out.exit_code != 0) return;
     out.exit_code = 1;
-    out.verdict = setup_name + std::to_string(p.failed) + " of " + std::to_string(paths) +
+    out.verdict = setup_name + std::to_string(p.failed_paths.size()) + " of " + std::to_string(paths) +
                   " path(s) could not be planned (" + p.first_failure + ")";
   };
   if (!second) fail_plans(plans, det.paths.size(), "");
@@ -900,10 +899,13 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
       execution_s += seconds_since(t_exec);
       const WorkLeft left = work_left(ss, perc, plans);
       m["setup1.unseen_surface_fraction"] = left.unseen_fraction;
-      m["setup1.removal.flash_removed_fraction"] = sim::analyze_residual(exec.grid()).flash_removed_fraction;
-      s2 = second_setup(sc, setup, left, exec, cell_dir, dir, opt);
+      const sim::ResidualReport after_first = sim::analyze_residual(exec.grid());
+      m["setup1.removal.flash_removed_fraction"] = after_first.flash_removed_fraction;
+      sim::Casting now = casting_with_residual(setup.casting, sim::remaining_flash_mesh(exec.grid()),
+                                                     after_first.flash_volume_remaining);
+      s2 = second_setup(sc, setup, std::move(now), left, cell_dir, dir, opt);
       m["timing.setup2_s"] = s2->time_s;
-      ground_twice = s2->ran && s2->perception.registration.confident;
+      ground_twice = s2->error.empty() && s2->perception.registration.confident;
       if (ground_twice) {
         const auto t_exec2 = Clock::now();
         if (video) video->new_setup();
@@ -918,15 +920,15 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
         m["scan.unseen_parting_fraction"] = unseen_root_fraction(true_roots(setup.casting), seen);
         std::vector<Curve> found = curves_of(det), found2 = curves_of(s2->perception.detection);
         found.insert(found.end(), found2.begin(), found2.end());
-        score_detection(det, scan, found, true_roots(setup.casting), m);
+        score_paths(found, true_roots(setup.casting), m);
         merge_second_setup(s2->metrics, m);
         // The first setup's unplanned paths were the second's to grind: what fails is what the
         // second could not plan.
-        m["trajectory.paths_deferred"] = plans.failed;
-        m["trajectory.paths_failed"] = s2->plans.failed;
+        m["trajectory.paths_deferred"] = plans.failed_paths.size();
+        m["trajectory.paths_failed"] = s2->plans.failed_paths.size();
         fail_plans(s2->plans, s2->perception.detection.paths.size(), "second setup: ");
       } else {
-        const std::string why = s2->ran ? "registration not confident (" + s2->perception.registration.message + ")"
+        const std::string why = s2->error.empty() ? "registration not confident (" + s2->perception.registration.message + ")"
                                         : s2->error;
         spdlog::warn("second setup: {}: nothing ground in it", why);
         for (const auto& [key, v] : s2->metrics.items()) m["setup2." + key] = v;

@@ -137,16 +137,14 @@ json toolpath_layer(const ReportInputs& in) {
 json robot_layer(const ReportInputs& in, const View3dParams& P) {
   const auto& ex = in.execution;
   const RobotModel& robot = in.scenario.robot;
-  // Each setup's rows relative to the casting as that setup placed it.
-  const Pose X_CB_first = in.scan.setup.spec.X_WC.inverse() * in.scan.setup.spec.X_WB;
+  // Each setup's rows relative to the casting as that setup placed it (ex.X_CB[ex.setup[i]]).
   std::vector<float> t, force, xyz;
   std::vector<std::int32_t> path;
   for (const std::size_t i : thin(ex.q.size(), P.robot_frames)) {
     t.push_back(static_cast<float>(ex.t[i]));
     force.push_back(static_cast<float>(ex.normal_force[i]));
     path.push_back(ex.path[i]);
-    const std::size_t setup = i < ex.setup.size() ? static_cast<std::size_t>(ex.setup[i]) : 0;
-    const Pose& X_CB = setup < ex.X_CB.size() ? ex.X_CB[setup] : X_CB_first;
+    const Pose& X_CB = ex.X_CB[static_cast<std::size_t>(ex.setup[i])];
     const auto X_B = planner::fk_frames(robot, ex.q[i]);
     for (const auto& X : X_B) push_mm(xyz, X_CB * X.translation());
     push_mm(xyz, X_CB * (X_B.back() * robot.tool.X_ET).translation());

@@ -77,10 +77,6 @@ class Execution {
   bool failed() const { return summary_.failed; }
   const sim::MaterialGrid& grid() const { return *grid_; }
 
-  /// The part as it stands now: `casting`'s nominal body with what is left of its flash as one
-  /// fin (the voxel surface of the remaining flash, no root polyline), for scanning it again.
-  sim::Casting casting_now(const sim::Casting& casting) const;
-
   /// Analyses the residual and writes the execution.*, force.*, removal.* and sim.* metrics
   /// over every setup run; returns the logs and the material.
   ExecutionSummary finish(nlohmann::ordered_json& m);
@@ -94,6 +90,12 @@ class Execution {
   std::size_t track_n_ = 0, violations_ = 0, clamped_ = 0, steps_ = 0, executed_ = 0, force_stops_ = 0;
   std::string status_ = "ok";
 };
+
+/// The part as it stands after grinding, for scanning it again: `casting`'s nominal body and
+/// what is left of its flash (`remaining_C`, the voxel surface sim::remaining_flash_mesh gives,
+/// in {C}, of `volume` m^3) as one fin without a root polyline.
+sim::Casting casting_with_residual(const sim::Casting& casting, const TriangleMesh& remaining_C,
+                                   double volume);
 
 /// One setup: Execution(scenario, scan.setup.casting), run(scan, plans, frame_hook), finish(m).
 ExecutionSummary execute_plans(const Scenario& scenario, const ScenarioScan& scan,
