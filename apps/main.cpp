@@ -621,7 +621,7 @@ int cmd_plan(const Common& c, const std::string& paths_path, const std::string& 
       pj["max_joint_accel_ratio"] = g.max_joint_accel_ratio;
       pj["min_manipulability"] = g.min_manipulability;
       if (!export_lang.empty()) {
-        ft::planner::ProgramParams pp;
+        ft::planner::ProgramParams pp = ft::planner::program_params_for(robot);
         pp.dialect = export_lang == "krl" ? ft::planner::ProgramDialect::kKrl
                                           : ft::planner::ProgramDialect::kUrScript;
         pp.name = "flashtwin_path_" + std::to_string(k);

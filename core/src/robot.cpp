@@ -39,6 +39,29 @@ Pose dh_constant(const DhRow& row) {
 
 namespace {
 
+bool near_exact(double v, double t) { return std::abs(v - t) < 1e-12; }
+
+}  // namespace
+
+ArmGeometry arm_geometry(const RobotModel& r) {
+  const double h = M_PI / 2;
+  const auto& dh = r.dh;
+  const bool spherical = near_exact(dh[0].alpha, -h) && near_exact(dh[1].alpha, 0) &&
+                         near_exact(dh[2].alpha, -h) && near_exact(dh[3].alpha, h) &&
+                         near_exact(dh[4].alpha, -h) && near_exact(dh[5].alpha, 0) && near_exact(dh[3].a, 0) &&
+                         near_exact(dh[4].a, 0) && near_exact(dh[5].a, 0) && near_exact(dh[4].d, 0) &&
+                         std::hypot(dh[2].a, dh[3].d) > 1e-9 && std::abs(dh[1].a) > 1e-9;
+  if (spherical) return ArmGeometry::kSphericalWrist;
+  const bool offset_wrist = near_exact(dh[0].alpha, h) && near_exact(dh[1].alpha, 0) &&
+                            near_exact(dh[2].alpha, 0) && near_exact(dh[3].alpha, h) &&
+                            near_exact(dh[4].alpha, -h) && near_exact(dh[5].alpha, 0) && near_exact(dh[3].a, 0) &&
+                            near_exact(dh[4].a, 0) && near_exact(dh[5].a, 0) && std::abs(dh[1].a) > 1e-9 &&
+                            std::abs(dh[2].a) > 1e-9;
+  return offset_wrist ? ArmGeometry::kOffsetWrist : ArmGeometry::kUnsupported;
+}
+
+namespace {
+
 Inertial parse_inertial(const ConfigNode& n) {
   Inertial in;
   in.mass = n.get_double("mass", 1e-6, 1e4);
@@ -114,11 +137,48 @@ RobotModel parse_robot(const std::string& yaml_text, const std::string& name) {
     if (!r.within_limits(r.home)) home.fail("expected a configuration within the joint limits");
   }
 
+  if (root.has("controller")) {
+    const ConfigNode c = root.at("controller");
+    if (c.has("sign")) {
+      const auto v = c.at("sign").as_doubles(kNumJoints);
+      for (int i = 0; i < kNumJoints; ++i) {
+        if (v[i] != 1.0 && v[i] != -1.0)
+          c.at("sign").fail("expected six signs, each 1 or -1, got " + std::to_string(v[i]));
+        r.controller.sign[i] = v[i];
+      }
+    }
+    if (c.has("offset")) {
+      const auto v = c.at("offset").as_doubles(kNumJoints);
+      for (int i = 0; i < kNumJoints; ++i) {
+        if (!(std::abs(v[i]) <= 2 * M_PI))
+          c.at("offset").fail("expected six offsets within [-2pi, 2pi] [rad]");
+        r.controller.offset[i] = v[i];
+      }
+    }
+  }
+
+  if (root.has("servo")) {
+    const ConfigNode sv = root.at("servo");
+    const auto kp = sv.at("kp").as_doubles(kNumJoints);
+    const auto damping = sv.at("damping").as_doubles(kNumJoints);
+    for (int i = 0; i < kNumJoints; ++i) {
+      if (!(kp[i] > 0 && kp[i] <= 1e7)) sv.at("kp").fail("expected six stiffnesses in (0, 1e7] N m/rad");
+      if (!(damping[i] >= 0 && damping[i] <= 1e5))
+        sv.at("damping").fail("expected six dampings in [0, 1e5] N m s/rad");
+      r.servo_kp[i] = kp[i];
+      r.servo_damping[i] = damping[i];
+    }
+  }
+
   root.check_all_used();
   return r;
 }
 
-RobotModel load_robot(const std::string& path) { return parse_robot(read_text_file(path), path); }
+RobotModel load_robot(const std::string& path) {
+  const bool urdf = path.size() > 5 && path.compare(path.size() - 5, 5, ".urdf") == 0;
+  const std::string text = read_text_file(path);
+  return urdf ? robot_from_urdf(text, path) : parse_robot(text, path);
+}
 
 namespace {
 
@@ -193,9 +253,9 @@ std::string robot_urdf(const RobotModel& robot) {
      << "  </link>\n"
      << "  <joint name=\"flange_joint\" type=\"fixed\"><parent link=\"link6\"/>"
      << "<child link=\"flange\"/>" << origin_xml(dh_constant(robot.dh[5])) << "</joint>\n"
-     << "  <link name=\"tool0\"/>\n"
+     << "  <link name=\"tcp\"/>\n"
      << "  <joint name=\"tool_joint\" type=\"fixed\"><parent link=\"flange\"/>"
-     << "<child link=\"tool0\"/>" << origin_xml(robot.tool.X_ET) << "</joint>\n"
+     << "<child link=\"tcp\"/>" << origin_xml(robot.tool.X_ET) << "</joint>\n"
      << "</robot>\n";
   const std::string xml = os.str();
   // The output must be readable by urdfdom (what ROS/MoveIt use); anything else is our bug.

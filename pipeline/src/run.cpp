@@ -516,7 +516,7 @@ void write_plan_files(const Scenario& sc, const planner::GrindResult& g, const f
   const std::string csv = planner::trajectory_csv(g);
   planner::write_grind_outputs(g, pd, report, csv);
   // The robot program a real KUKA controller would run (frames declared in it).
-  planner::ProgramParams pp;
+  planner::ProgramParams pp = planner::program_params_for(sc.robot);
   pp.name = "flashtwin_" + name;
   try {
     planner::export_program_file(sc.robot, g.trajectory, pp, pd);

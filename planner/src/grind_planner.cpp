@@ -778,7 +778,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
               P.branch_mask);
   if (!ik_supported(robot))
     throw ArgumentError("robot '" + robot.name +
-                        "': expected a PUMA-type D-H table the analytic IK handles");
+                        "': expected a D-H table of a type the analytic IK handles (spherical wrist or UR-type offset wrist)");
   const double radius = robot.tool.radius, length = robot.tool.length;
   if (!(radius > 0) || !(length > 0))
     throw ArgumentError(

@@ -1,6 +1,9 @@
 #include "flashtwin/planner/kinematics.hpp"
 
+#include <algorithm>
 #include <cmath>
+
+#include "flashtwin/planner/ik.hpp"
 
 namespace flashtwin::planner {
 
@@ -63,14 +66,22 @@ SingularityReport check_singularity(const RobotModel& robot, const Vector6& q, d
   SingularityReport r;
   r.manipulability = manipulability(robot, q);
   r.wrist = std::abs(std::sin(q[4]));
-  // Elbow: angle psi between the upper arm and the shoulder-wrist "virtual forearm".
-  const double a3 = robot.dh[2].a, d4 = robot.dh[3].d;
-  r.elbow = std::abs(std::sin(q[2] + std::atan2(d4, a3)));
-  // Shoulder: the wrist centre's coordinate along x1 (it is zero on the singular surface).
   const auto X = fk_frames(robot, q);
-  const Vec3 p_w = X[4].translation();
-  const Vec3 p_1w = X[1].inverse() * p_w;
-  r.shoulder = std::abs(p_1w.x());
+  if (arm_geometry(robot) == ArmGeometry::kOffsetWrist) {
+    // Joints 2–4 parallel: the elbow is singular when the two links a2, a3 line up; the
+    // shoulder when frame {5}'s origin comes within the lateral offset of joint 1's axis.
+    r.elbow = std::abs(std::sin(q[2]));
+    const Vec3 p5 = X[5].translation();
+    const double dl = robot.dh[1].d + robot.dh[2].d + robot.dh[3].d;
+    r.shoulder = std::sqrt(std::max(0.0, p5.head<2>().squaredNorm() - dl * dl));
+  } else {
+    // Elbow: angle psi between the upper arm and the shoulder-wrist "virtual forearm".
+    const double a3 = robot.dh[2].a, d4 = robot.dh[3].d;
+    r.elbow = std::abs(std::sin(q[2] + std::atan2(d4, a3)));
+    // Shoulder: the wrist centre's coordinate along x1 (it is zero on the singular surface).
+    const Vec3 p_1w = X[1].inverse() * X[4].translation();
+    r.shoulder = std::abs(p_1w.x());
+  }
   r.singular = r.manipulability < threshold;
   return r;
 }

@@ -121,6 +121,17 @@ std::vector<std::string> split_top(const std::string& s) {
   return parts;
 }
 
+}  // namespace
+
+ProgramParams program_params_for(const RobotModel& robot) {
+  ProgramParams P;
+  P.joint_sign = robot.controller.sign;
+  P.joint_offset = robot.controller.offset;
+  return P;
+}
+
+namespace {
+
 // Controller axis values <-> D-H angles.
 Vector6 to_axes(const Vector6& q, const ProgramParams& P) {
   return P.joint_sign.cwiseProduct(q) + P.joint_offset;

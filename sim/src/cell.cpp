@@ -263,7 +263,8 @@ std::string arm_mjcf(const RobotModel& robot, const Pose& X_WB, const CellSpec& 
     os << indent << "<body name=\"link" << i + 1 << "\" " << pose_attrs(X_parent) << ">\n"
        << indent << "  <joint name=\"joint" << i + 1 << "\" type=\"hinge\" axis=\"0 0 1\" "
        << "limited=\"true\" range=\"" << num(L.lower) << " " << num(L.upper) << "\" damping=\""
-       << num(spec.damping[i]) << "\" armature=\"0.05\"/>\n"
+       << num(robot.servo_kp[i] > 0 ? robot.servo_damping[i] : spec.damping[i])
+       << "\" armature=\"0.05\"/>\n"
        << indent << "  " << inertial_xml(robot.links[i], dh_constant(robot.dh[i])) << "\n"
        << indent << "  " << link_geoms(robot.dh[i], radii[i], i % 2 ? "robot" : "robot_dark")
        << "\n";
@@ -408,7 +409,7 @@ std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec, const Casti
   for (int i = 0; i < kNumJoints; ++i) {
     const JointLimits& L = robot.limits[i];
     os << "    <position name=\"act" << i + 1 << "\" joint=\"joint" << i + 1 << "\" kp=\""
-       << num(spec.kp[i]) << "\" ctrlrange=\"" << num(L.lower) << " " << num(L.upper)
+       << num(robot.servo_kp[i] > 0 ? robot.servo_kp[i] : spec.kp[i]) << "\" ctrlrange=\"" << num(L.lower) << " " << num(L.upper)
        << "\" forcerange=\"" << num(-L.torque) << " " << num(L.torque) << "\"/>\n";
   }
   os << "  </actuator>\n";

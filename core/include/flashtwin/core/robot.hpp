@@ -45,6 +45,13 @@ struct ToolDescription {
   double length = 0.02;          ///< cutting length along the tool axis [m]
 };
 
+/// How the robot's own controller counts its axes (what a KRL PTP, RAPID MoveAbsJ or URScript
+/// movej takes): A_i = sign_i·θ_i + offset_i, with the vendor's zero position and directions.
+struct ControllerAxes {
+  Vector6 sign = Vector6::Ones();     ///< ±1
+  Vector6 offset = Vector6::Zero();   ///< [rad]
+};
+
 /// Immutable robot description (Model apart from Data: no state in here).
 struct RobotModel {
   std::string name;
@@ -56,6 +63,12 @@ struct RobotModel {
   Inertial base;  ///< the fixed base link, in frame {0}={B}
   ToolDescription tool;
   Vector6 home = Vector6::Zero();  ///< parking configuration [rad] (MJCF keyframe `home`)
+  ControllerAxes controller;       ///< the controller's axis values (YAML `controller:`)
+  /// The twin's position servos for this arm (YAML `servo: {kp, damping}`): stiffness
+  /// [N·m/rad] and joint damping [N·m·s/rad] per joint; unset (0): the cell's defaults, tuned
+  /// for the FT6. A model of the drives, not a vendor figure.
+  std::array<double, kNumJoints> servo_kp{};
+  std::array<double, kNumJoints> servo_damping{};
 
   Vector6 lower() const;
   Vector6 upper() const;
@@ -63,16 +76,43 @@ struct RobotModel {
   bool within_limits(const Vector6& q, double tol = 0) const;
 };
 
-/// Reads and validates a robot description file.
+/// Which closed-form solver an arm's D-H table admits.
+enum class ArmGeometry {
+  /// α = −π/2, 0, −π/2, π/2, −π/2, 0; a4 = a5 = a6 = 0, d5 = 0 (axes 4–6 meet in the wrist
+  /// centre); d1, a1, d2 + d3 (lateral offset), a2 ≠ 0, a3, d4, d6 free. Covers the OPW
+  /// parameters (Brandstötter et al., 2014) of KUKA, ABB and FANUC arms.
+  kSphericalWrist,
+  /// α = π/2, 0, 0, π/2, −π/2, 0; a4 = a5 = a6 = 0; a2, a3 ≠ 0 (joints 2–4 parallel, wrist
+  /// offsets d5, d6): the Universal Robots arms.
+  kOffsetWrist,
+  kUnsupported,
+};
+
+/// The arm type of a D-H table (see ArmGeometry): which analytic IK applies.
+ArmGeometry arm_geometry(const RobotModel& robot);
+
+/// Reads and validates a robot description file: YAML (the project's format), or URDF when the
+/// name ends in `.urdf` (robot_from_urdf).
 /// @throws IoError (missing file), ConfigError (naming the field: malformed value, lower >=
 /// upper, non-positive velocity/acceleration/torque/mass, inertia violating the triangle
 /// inequality, unknown keys).
 RobotModel load_robot(const std::string& path);
 
+/// A robot description from URDF text (urdfdom): a serial chain of six revolute/continuous
+/// joints (fixed joints anywhere), joint 1 about the root link's z axis through its origin. The
+/// D-H table is derived from the joint axes (the URDF's joint zero and directions become the
+/// controller's axis convention, `controller`); accelerations, absent from URDF, are the FT6's;
+/// the tool is the FT6's spindle on the `tool0` (else `flange`, else the last) link.
+/// @throws ConfigError naming the file and what does not fit (branching chain, prismatic joint,
+/// not six joints, joint 1 off the base z axis, a D-H table neither IK solver handles, missing
+/// velocity or effort limit).
+RobotModel robot_from_urdf(const std::string& urdf_text, const std::string& name);
+
 /// Parses a robot description from YAML text (`name` stands in for the file in messages).
 RobotModel parse_robot(const std::string& yaml_text, const std::string& name);
 
-/// URDF text of the arm: links base_link, link1..link6, flange, tool0 (tool frame {T});
+/// URDF text of the arm: links base_link, link1..link6, flange (D-H frame 6, {E}), tcp (tool
+/// frame {T});
 /// revolute joints joint1..joint6 with the description's limits. Joint zero = D-H θ zero.
 std::string robot_urdf(const RobotModel& robot);
 

@@ -1,5 +1,7 @@
 #pragma once
-// Analytic inverse kinematics of PUMA-type arms (spherical wrist): all up to 8 solutions.
+// Analytic inverse kinematics, all up to 8 solutions, of the two arm types industrial grinding
+// cells use: spherical-wrist arms (PUMA/OPW type: KUKA, ABB, FANUC, the FT6) and offset-wrist
+// arms (Universal Robots type).
 #include <optional>
 #include <string>
 #include <vector>
@@ -29,8 +31,9 @@ enum class IkStatus {
   kOk,                     ///< at least one solution within the joint limits
   kUnreachable,            ///< no solution at all (pose out of reach)
   kOutsideLimits,          ///< solutions exist, none within the joint limits
-  kUnsupportedGeometry,    ///< the D-H table is not of the PUMA type this solver handles
+  kUnsupportedGeometry,    ///< the D-H table is of neither type the solvers handle
 };
+
 
 /// Options of the IK solver.
 struct IkParams {
@@ -61,9 +64,7 @@ struct IkResult {
   bool ok() const { return status == IkStatus::kOk; }
 };
 
-/// True when the D-H table has the structure the analytic solver handles (spherical wrist,
-/// α = −π/2, 0, −π/2, π/2, −π/2, 0; a4 = a5 = a6 = 0, d5 = 0). d1, a1, d2, d3, a2, a3, d4, d6
-/// are free.
+/// True when one of the analytic solvers handles the D-H table.
 bool ik_supported(const RobotModel& robot);
 
 /// All IK solutions for a flange pose X_BE.

@@ -62,13 +62,18 @@ struct ProgramParams {
   double min_speed = 0.0005;
   /// KRL: a new $VEL.CP is programmed when the speed changes by more than this fraction [-].
   double speed_change = 0.02;
-  Vector6 joint_sign = Vector6::Ones();    ///< controller axis = sign·q + offset
+  /// Controller axis = sign·q + offset; program_params_for(robot) takes the robot
+  /// description's `controller:` mapping.
+  Vector6 joint_sign = Vector6::Ones();
   Vector6 joint_offset = Vector6::Zero();  ///< [rad]
   /// Speed of the joint move to the first point, as a fraction of each joint's limit [-].
   double approach_speed = 0.2;
   double servo_lookahead = 0.1;  ///< UR servoj lookahead_time, 0.03 to 0.2 [s]
   double servo_gain = 300;       ///< UR servoj gain, 100 to 2000 [-]
 };
+
+/// Default options for `robot`: its controller's axis convention (robot.controller).
+ProgramParams program_params_for(const RobotModel& robot);
 
 /// A program as text, with the trajectory sample behind each motion instruction.
 struct RobotProgram {

@@ -33,7 +33,8 @@ struct CellSpec {
   Pose X_WM = Pose(Eigen::Translation3d(0.70, 0.0, 1.25)) *
               Pose(Eigen::AngleAxisd(M_PI, Vec3::UnitX()));
   double timestep = 0.001;           ///< [s] MuJoCo step (≥ 1 kHz)
-  /// Position-actuator stiffness per joint [N·m/rad]; torque-limited by the robot's limits.
+  /// Position-actuator stiffness per joint [N·m/rad], tuned for the FT6; torque-limited by the
+  /// robot's limits. A robot description's `servo:` block replaces kp and damping.
   std::array<double, kNumJoints> kp{20000, 20000, 10000, 2000, 1500, 800};
   std::array<double, kNumJoints> damping{300, 300, 150, 20, 15, 8};  ///< joint damping [N·m·s/rad]
   /// Fixture blocks; empty: the two locating blocks of fixture_blocks(), laid out beside the

@@ -1,0 +1,76 @@
+// Every arm of the robot library in the MuJoCo cell: the MJCF's flange and TCP sites follow the
+// D-H kinematics, and the position servos hold the home pose against gravity within their
+// torque limits (real dynamics: a torque limit too small for the arm's own weight fails here).
+#include <gtest/gtest.h>
+
+#include "flashtwin/core/random.hpp"
+#include "flashtwin/planner/kinematics.hpp"
+#include "flashtwin/sim/cell.hpp"
+#include "flashtwin/sim/mujoco_handles.hpp"
+#include "test_util.hpp"
+
+using namespace flashtwin;
+
+namespace {
+
+class CellArms : public ::testing::TestWithParam<const char*> {
+ protected:
+  RobotModel robot = load_robot(ftest::source_path(std::string("models/robots/") + GetParam() +
+                                                   ".yaml"));
+};
+
+Pose site_pose(const mjData* d, int id) {
+  Pose X = Pose::Identity();
+  X.translation() = Vec3(d->site_xpos[3 * id], d->site_xpos[3 * id + 1], d->site_xpos[3 * id + 2]);
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) X.linear()(r, c) = d->site_xmat[9 * id + 3 * r + c];
+  return X;
+}
+
+}  // namespace
+
+TEST_P(CellArms, MjcfSitesFollowTheDhKinematics) {
+  const sim::CellSpec spec;
+  const auto m = sim::load_mjcf_string(sim::cell_mjcf(robot, spec), "cell.xml");
+  const auto d = sim::make_data(m.get());
+  const int flange = sim::require_id(m.get(), mjOBJ_SITE, "flange");
+  const int tcp = sim::require_id(m.get(), mjOBJ_SITE, "tcp");
+  Rng rng(17);
+  double worst_p = 0, worst_r = 0;
+  for (int n = 0; n < 300; ++n) {
+    Vector6 q;
+    for (int i = 0; i < 6; ++i) {
+      q[i] = rng.uniform(robot.limits[i].lower, robot.limits[i].upper);
+      d->qpos[m->jnt_qposadr[sim::require_id(m.get(), mjOBJ_JOINT, "joint" + std::to_string(i + 1))]] = q[i];
+    }
+    mj_kinematics(m.get(), d.get());
+    const Pose E = site_pose(d.get(), flange), T = site_pose(d.get(), tcp);
+    const Pose X_WE = spec.X_WB * planner::fk_flange(robot, q);
+    const Pose X_WT = spec.X_WB * planner::fk_tool(robot, q);
+    worst_p = std::max({worst_p, (E.translation() - X_WE.translation()).norm(),
+                        (T.translation() - X_WT.translation()).norm()});
+    worst_r = std::max(worst_r, rotation_distance(E.linear(), X_WE.linear()));
+  }
+  EXPECT_LT(worst_p, 1e-9) << robot.name;
+  EXPECT_LT(worst_r, 1e-9) << robot.name;
+}
+
+TEST_P(CellArms, ServosHoldHomeAgainstGravityWithinTheirTorques) {
+  const auto m = sim::load_mjcf_string(sim::cell_mjcf(robot, sim::CellSpec{}), "cell.xml");
+  const auto d = sim::make_data(m.get());
+  mj_resetDataKeyframe(m.get(), d.get(), sim::require_id(m.get(), mjOBJ_KEY, "home"));
+  for (int k = 0; k < 2000; ++k) mj_step(m.get(), d.get());  // 2 s at 1 kHz
+  double worst = 0;
+  for (int i = 0; i < 6; ++i) worst = std::max(worst, std::abs(d->qpos[i] - robot.home[i]));
+  EXPECT_LT(worst, 0.02) << robot.name;
+  for (int i = 0; i < 6; ++i) {
+    EXPECT_LT(std::abs(d->qvel[i]), 1e-2) << robot.name << " joint " << i + 1;
+    // Holding the pose takes less than the joint's torque limit (the servo is not saturated).
+    EXPECT_LT(std::abs(d->actuator_force[i]), 0.9 * robot.limits[i].torque)
+        << robot.name << " joint " << i + 1;
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Library, CellArms,
+                         ::testing::Values("ft6", "kuka_kr16", "abb_irb4600", "fanuc_m20ia",
+                                           "ur10e"));
