@@ -622,8 +622,9 @@ int cmd_plan(const Common& c, const std::string& paths_path, const std::string& 
       pj["min_manipulability"] = g.min_manipulability;
       if (!export_lang.empty()) {
         ft::planner::ProgramParams pp = ft::planner::program_params_for(robot);
-        pp.dialect = export_lang == "krl" ? ft::planner::ProgramDialect::kKrl
-                                          : ft::planner::ProgramDialect::kUrScript;
+        pp.dialect = export_lang == "krl"     ? ft::planner::ProgramDialect::kKrl
+                     : export_lang == "rapid" ? ft::planner::ProgramDialect::kRapid
+                                              : ft::planner::ProgramDialect::kUrScript;
         pp.name = "flashtwin_path_" + std::to_string(k);
         pj["program"] = ft::planner::export_program_file(robot, g.trajectory, pp, dir);
       }
@@ -834,8 +835,10 @@ int main(int argc, char** argv) {
                    "(or under key X_BC)")
       ->required();
   plan->add_option("-o,--output", out, "Output folder (path_k/ per path, plans.json)")->required();
-  plan->add_option("--export", export_lang, "Robot program per path: krl (KUKA .src) or urscript")
-      ->check(CLI::IsMember({"krl", "urscript"}));
+  plan->add_option("--export", export_lang,
+                   "Robot program per path: krl (KUKA .src), rapid (ABB .mod) or urscript (UR "
+                   ".script), in the robot file's controller axis convention")
+      ->check(CLI::IsMember({"krl", "rapid", "urscript"}));
   plan->add_option("--feed", plan_feed, "Cutting feed [m/s]")->capture_default_str()
       ->check(CLI::Range(1e-4, 1.0));
   plan->add_option("--lead", plan_lead, "Lead angle [deg]")->capture_default_str()

@@ -139,6 +139,11 @@ RobotModel parse_robot(const std::string& yaml_text, const std::string& name) {
 
   if (root.has("controller")) {
     const ConfigNode c = root.at("controller");
+    r.controller.language = c.get_string("language", r.controller.language);
+    if (r.controller.language != "krl" && r.controller.language != "rapid" &&
+        r.controller.language != "urscript" && r.controller.language != "none")
+      c.at("language").fail("expected krl, rapid, urscript or none, got '" +
+                            r.controller.language + "'");
     if (c.has("sign")) {
       const auto v = c.at("sign").as_doubles(kNumJoints);
       for (int i = 0; i < kNumJoints; ++i) {

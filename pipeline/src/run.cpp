@@ -515,13 +515,15 @@ void write_plan_files(const Scenario& sc, const planner::GrindResult& g, const f
   // The joint plots belong to the report (--no-report skips them).
   const std::string csv = planner::trajectory_csv(g);
   planner::write_grind_outputs(g, pd, report, csv);
-  // The robot program a real KUKA controller would run (frames declared in it).
+  // The robot program the arm's own controller would run (its language and axis convention,
+  // frames declared in it); none for a controller without an exporter.
+  if (sc.robot.controller.language == "none") return;
   planner::ProgramParams pp = planner::program_params_for(sc.robot);
   pp.name = "flashtwin_" + name;
   try {
     planner::export_program_file(sc.robot, g.trajectory, pp, pd);
   } catch (const ArgumentError& e) {
-    spdlog::warn("{}: no KRL program: {}", name, e.what());
+    spdlog::warn("{}: no {} program: {}", name, sc.robot.controller.language, e.what());
   }
 }
 

@@ -127,6 +127,8 @@ ProgramParams program_params_for(const RobotModel& robot) {
   ProgramParams P;
   P.joint_sign = robot.controller.sign;
   P.joint_offset = robot.controller.offset;
+  if (robot.controller.language == "rapid") P.dialect = ProgramDialect::kRapid;
+  if (robot.controller.language == "urscript") P.dialect = ProgramDialect::kUrScript;
   return P;
 }
 
@@ -213,8 +215,101 @@ Pose pose_from_ur_pose(const UrPose& u) {
 }
 
 std::string to_string(ProgramDialect dialect) {
-  return dialect == ProgramDialect::kKrl ? "krl" : "urscript";
+  switch (dialect) {
+    case ProgramDialect::kKrl: return "krl";
+    case ProgramDialect::kUrScript: return "urscript";
+    case ProgramDialect::kRapid: return "rapid";
+  }
+  return "?";
 }
+
+namespace {
+
+// ---- ABB RAPID: one MODULE with PERS tooldata/wobjdata and PROC main; positions [mm],
+// orientations as quaternions [q1 q2 q3 q4] = [w x y z], axis values [deg].
+
+std::string rapid_pos_quat(const Pose& X) {
+  const Eigen::Quaterniond q(X.linear());
+  const Vec3 p = X.translation();
+  return "[[" + mm(p.x()) + ", " + mm(p.y()) + ", " + mm(p.z()) + "], [" + fixed(q.w(), 8) + ", " +
+         fixed(q.x(), 8) + ", " + fixed(q.y(), 8) + ", " + fixed(q.z(), 8) + "]]";
+}
+
+// confdata [cf1, cf4, cf6, cfx]: the quadrants of axes 1, 4 and 6 (floor(angle / 90°)), and
+// the arm configuration 0..7 = 4·(wrist centre behind axis 1) + 2·(wrist centre behind the
+// lower arm) + (axis 5 negative), as ABB numbers it for serial arms.
+std::string rapid_confdata(const RobotModel& robot, const Vector6& q, const Vector6& axes_deg) {
+  const auto F = fk_frames(robot, q);
+  const Vec3 p_w = F[4].translation();  // wrist centre (frame {4}'s origin)
+  const bool behind_axis1 = (F[1].inverse() * p_w).x() < 0;
+  const bool behind_lower_arm = (F[2].inverse() * p_w).y() < 0;
+  const int cfx = 4 * behind_axis1 + 2 * behind_lower_arm + (axes_deg[4] < 0 ? 1 : 0);
+  const auto quadrant = [](double a) {
+    return std::to_string(static_cast<int>(std::floor(a / 90.0)));
+  };
+  return "[" + quadrant(axes_deg[0]) + ", " + quadrant(axes_deg[3]) + ", " +
+         quadrant(axes_deg[5]) + ", " + std::to_string(cfx) + "]";
+}
+
+std::string rapid_jointtarget(const Vector6& axes_deg) {
+  std::string s = "[[";
+  for (int j = 0; j < kNumJoints; ++j) s += (j ? ", " : "") + deg(axes_deg[j]);
+  return s + "], [9E9, 9E9, 9E9, 9E9, 9E9, 9E9]]";
+}
+
+// speeddata [v_tcp mm/s, v_ori deg/s, v_leax, v_reax]; zonedata [finep, pzone_tcp, pzone_ori,
+// pzone_eax, zone_ori, zone_leax, zone_reax] (mm, deg).
+std::string rapid_speed(double v_tcp, double v_ori) {
+  return "[" + fixed(v_tcp * 1000.0, 3) + ", " + fixed(v_ori * kRad2Deg, 3) + ", 5000, 1000]";
+}
+std::string rapid_zone(double radius) {
+  const std::string r = mm(radius);
+  return "[FALSE, " + r + ", " + r + ", " + r + ", 0.1, " + r + ", 0.1]";
+}
+
+template <typename SegmentSpeed>
+void write_rapid(std::ostringstream& o, const RobotModel& robot, const JointTrajectory& tr,
+                 const ProgramParams& P, const Pose& X_ET, const std::vector<Pose>& X_WT,
+                 const std::vector<std::size_t>& idx, const SegmentSpeed& segment_speed,
+                 double max_ori_speed) {
+  const std::size_t npts = idx.size();
+  const auto axes_deg = [&](const Vector6& q) { return Vector6(to_axes(q, P) * kRad2Deg); };
+  const Inertial& tool = robot.tool.inertial;
+  const Vec3 com_mm = 1000.0 * (X_ET.inverse() * tool.com);  // the load's COM in {T}
+  o << "MODULE " << P.name << "\n";
+  o << "  ! flashtwin robot program (ABB RAPID): " << npts << " motion points, "
+    << fixed(tr.duration(), 3) << " s trajectory\n";
+  o << "  ! tooldata: tool {T} in flange {E}; wobjdata uframe: work frame {W} in robot base {B};"
+       " mm, deg, quaternions [w, x, y, z]\n";
+  o << "  ! axis values are D-H joint angles mapped as sign*q + offset; confdata from the"
+       " configuration\n";
+  o << "  PERS tooldata tFlashtwin := [TRUE, " << rapid_pos_quat(X_ET) << ", ["
+    << fixed(std::max(tool.mass, 0.001), 3) << ", [" << fixed(com_mm.x(), 3) << ", "
+    << fixed(com_mm.y(), 3) << ", " << fixed(com_mm.z(), 3) << "], [1, 0, 0, 0], 0, 0, 0]];\n";
+  o << "  PERS wobjdata wFlashtwin := [FALSE, TRUE, \"\", " << rapid_pos_quat(P.X_BW)
+    << ", [[0, 0, 0], [1, 0, 0, 0]]];\n";
+  o << "  PROC main()\n";
+  o << "    MoveAbsJ " << rapid_jointtarget(axes_deg(tr.q[idx[0]])) << ", v100, fine, tFlashtwin;\n";
+  const double v_ori = std::max(1.2 * max_ori_speed, 10.0 / kRad2Deg);
+  for (std::size_t i = 1; i < npts; ++i) {
+    const std::string zone = i + 1 == npts ? "fine" : rapid_zone(P.blend_radius);
+    const Vector6 a = axes_deg(tr.q[idx[i]]);
+    if (P.motion == ProgramMotion::kJoint) {
+      o << "    MoveAbsJ " << rapid_jointtarget(a) << ", " << rapid_speed(segment_speed(i), v_ori)
+        << ", " << zone << ", tFlashtwin \\WObj:=wFlashtwin;\n";
+    } else {
+      const std::string pq = rapid_pos_quat(X_WT[idx[i]]);
+      o << "    MoveL [" << pq.substr(1, pq.size() - 2) << ", "
+        << rapid_confdata(robot, tr.q[idx[i]], a) << ", [9E9, 9E9, 9E9, 9E9, 9E9, 9E9]], "
+        << rapid_speed(segment_speed(i), v_ori) << ", " << zone
+        << ", tFlashtwin \\WObj:=wFlashtwin;\n";
+    }
+  }
+  o << "  ENDPROC\n";
+  o << "ENDMODULE\n";
+}
+
+}  // namespace
 
 // ---------------------------------------------------------------------------------------------
 // Export
@@ -261,6 +356,10 @@ RobotProgram export_program(const RobotModel& robot, const JointTrajectory& tr,
   if (P.dialect == ProgramDialect::kKrl && P.motion == ProgramMotion::kServo)
     throw ArgumentError(
         "motion: expected linear, spline or joint for KRL, got servo (URScript only)");
+  if (P.dialect == ProgramDialect::kRapid &&
+      (P.motion == ProgramMotion::kServo || P.motion == ProgramMotion::kSpline))
+    throw ArgumentError("motion: expected linear or joint for RAPID, got " +
+                        std::string(P.motion == ProgramMotion::kServo ? "servo" : "spline"));
 
   const Pose X_ET = P.X_ET ? *P.X_ET : robot.tool.X_ET;
   const Pose X_WB = P.X_BW.inverse();
@@ -369,6 +468,8 @@ RobotProgram export_program(const RobotModel& robot, const JointTrajectory& tr,
       o << "  ENDSPLINE\n";
     }
     o << "END\n";
+  } else if (P.dialect == ProgramDialect::kRapid) {
+    write_rapid(o, robot, tr, P, X_ET, X_WT, idx, segment_speed, max_ori_speed);
   } else {
     const auto joints = [&](const Vector6& q) {
       const Vector6 a = to_axes(q, P);
@@ -427,7 +528,12 @@ void write_program(const RobotProgram& program, const std::string& path) {
 }
 
 std::string program_extension(ProgramDialect dialect) {
-  return dialect == ProgramDialect::kKrl ? ".src" : ".script";
+  switch (dialect) {
+    case ProgramDialect::kKrl: return ".src";
+    case ProgramDialect::kUrScript: return ".script";
+    case ProgramDialect::kRapid: return ".mod";
+  }
+  return ".txt";
 }
 
 std::string export_program_file(const RobotModel& robot, const JointTrajectory& trajectory,
@@ -681,11 +787,142 @@ ParsedProgram parse_urscript(const std::string& text, const ProgramParams& P) {
   return out;
 }
 
+// RAPID data aggregate: a number/boolean/string leaf or a bracketed list.
+struct RapidValue {
+  bool list = false;
+  double number = 0;
+  std::vector<RapidValue> items;
+};
+
+RapidValue rapid_value(const std::string& text, int line) {
+  const std::string t = trim(text);
+  RapidValue v;
+  if (!t.empty() && t.front() == '[') {
+    if (t.back() != ']') parse_error(line, "a closing ] in the aggregate", t);
+    v.list = true;
+    for (const std::string& part : split_top(t.substr(1, t.size() - 2)))
+      v.items.push_back(rapid_value(part, line));
+    return v;
+  }
+  const std::string u = upper(t);
+  if (u == "TRUE" || u == "FALSE") {
+    v.number = u == "TRUE";
+  } else if (!t.empty() && t.front() == '"') {
+    v.number = 0;  // a string (wobjdata's ufprog/ufmec)
+  } else {
+    v.number = parse_number(t, line, "a RAPID value");
+  }
+  return v;
+}
+
+// Item `i` of a list, checked.
+const RapidValue& rapid_item(const RapidValue& v, std::size_t i, int line, const char* what) {
+  if (!v.list || v.items.size() <= i) parse_error(line, what, "a shorter aggregate");
+  return v.items[i];
+}
+
+// [[x, y, z], [q1, q2, q3, q4]] (mm, quaternion w x y z) as a pose [m].
+Pose rapid_pose(const RapidValue& pos, const RapidValue& rot, int line) {
+  Pose X = Pose::Identity();
+  for (int k = 0; k < 3; ++k)
+    X.translation()[k] = rapid_item(pos, k, line, "[x, y, z]").number / 1000.0;
+  Eigen::Quaterniond q(rapid_item(rot, 0, line, "[q1, q2, q3, q4]").number,
+                       rapid_item(rot, 1, line, "[q1, q2, q3, q4]").number,
+                       rapid_item(rot, 2, line, "[q1, q2, q3, q4]").number,
+                       rapid_item(rot, 3, line, "[q1, q2, q3, q4]").number);
+  if (!(q.norm() > 0.5)) parse_error(line, "a unit quaternion", "a near-zero one");
+  X.linear() = q.normalized().toRotationMatrix();
+  return X;
+}
+
+ParsedProgram parse_rapid(const std::string& text, const ProgramParams& P) {
+  ParsedProgram out;
+  std::istringstream in(text);
+  std::string raw;
+  int line = 0;
+  bool in_module = false, in_proc = false;
+  while (std::getline(in, raw)) {
+    ++line;
+    std::string code = trim(raw.substr(0, raw.find('!')));
+    if (code.empty()) continue;
+    if (code.back() == ';') code = trim(code.substr(0, code.size() - 1));
+    const std::string up = upper(code);
+    const std::string first = up.substr(0, up.find_first_of(" \t"));
+    if (first == "MODULE") {
+      if (in_module) parse_error(line, "ENDMODULE before the next MODULE", code);
+      in_module = true;
+      if (out.name.empty()) out.name = trim(code.substr(6));
+      continue;
+    }
+    if (first == "ENDMODULE") {
+      if (!in_module || in_proc) parse_error(line, "MODULE (and ENDPROC) before ENDMODULE", code);
+      in_module = false;
+      continue;
+    }
+    if (!in_module) parse_error(line, "code inside MODULE ... ENDMODULE", code);
+    if (first == "PROC") {
+      if (in_proc) parse_error(line, "ENDPROC before the next PROC", code);
+      in_proc = true;
+      continue;
+    }
+    if (first == "ENDPROC") {
+      if (!in_proc) parse_error(line, "PROC before ENDPROC", code);
+      in_proc = false;
+      ++out.routines;
+      continue;
+    }
+    const auto assign = code.find(":=");
+    if ((first == "PERS" || first == "CONST" || first == "VAR") && assign != std::string::npos) {
+      const RapidValue v = rapid_value(code.substr(assign + 2), line);
+      if (up.find("TOOLDATA") != std::string::npos) {
+        const RapidValue& tframe = rapid_item(v, 1, line, "tooldata [robhold, tframe, tload]");
+        out.X_ET = rapid_pose(rapid_item(tframe, 0, line, "tframe"), rapid_item(tframe, 1, line, "tframe"), line);
+        out.tool_declared = true;
+      } else if (up.find("WOBJDATA") != std::string::npos) {
+        const RapidValue& uframe = rapid_item(v, 3, line, "wobjdata [.., .., .., uframe, oframe]");
+        out.X_BW = rapid_pose(rapid_item(uframe, 0, line, "uframe"), rapid_item(uframe, 1, line, "uframe"), line);
+        out.base_declared = true;
+      }
+      continue;
+    }
+    if (first == "MOVEABSJ" || first == "MOVEL" || first == "MOVEJ") {
+      if (!in_proc) parse_error(line, "a motion inside PROC ... ENDPROC", code);
+      const auto args = split_top(trim(code.substr(first.size())));
+      if (args.size() < 4) parse_error(line, "target, speed, zone and tool", code);
+      ProgramPoint pt;
+      pt.instruction = code.substr(0, first.size());
+      pt.line = line;
+      const RapidValue target = rapid_value(args[0], line);
+      if (first == "MOVEABSJ") {
+        const RapidValue& ax = rapid_item(target, 0, line, "jointtarget [[robax], [extax]]");
+        Vector6 a;
+        for (int j = 0; j < kNumJoints; ++j) a[j] = rapid_item(ax, j, line, "six axis values").number * kDeg2Rad;
+        pt.q = from_axes(a, P);
+      } else {
+        pt.cartesian = true;
+        pt.X_WT = rapid_pose(rapid_item(target, 0, line, "robtarget [trans, rot, ...]"),
+                             rapid_item(target, 1, line, "robtarget [trans, rot, ...]"), line);
+      }
+      if (!args[1].empty() && args[1].front() == '[')
+        pt.speed = rapid_item(rapid_value(args[1], line), 0, line, "speeddata").number / 1000.0;
+      out.points.push_back(pt);
+      continue;
+    }
+  }
+  if (in_proc || in_module) parse_error(line, "ENDPROC and ENDMODULE", "end of text");
+  if (out.routines == 0) parse_error(line, "a PROC ... ENDPROC routine", "none");
+  return out;
+}
+
 }  // namespace
 
 ParsedProgram parse_program(const std::string& text, const ProgramParams& params) {
-  return params.dialect == ProgramDialect::kKrl ? parse_krl(text, params)
-                                                : parse_urscript(text, params);
+  switch (params.dialect) {
+    case ProgramDialect::kKrl: return parse_krl(text, params);
+    case ProgramDialect::kRapid: return parse_rapid(text, params);
+    case ProgramDialect::kUrScript: break;
+  }
+  return parse_urscript(text, params);
 }
 
 }  // namespace flashtwin::planner

@@ -250,10 +250,13 @@ std::string arm_mjcf(const RobotModel& robot, const Pose& X_WB, const CellSpec& 
   std::ostringstream os;
   const double radii[kNumJoints] = {0.08, 0.07, 0.06, 0.05, 0.045, 0.04};
   os << "    <body name=\"base\" " << pose_attrs(X_WB) << ">\n"
-     << "      " << inertial_xml(robot.base, Pose::Identity()) << "\n"
-     << "      <geom type=\"cylinder\" fromto=\"0 0 " << num(-spec.base_height) << " 0 0 "
-     << num(-kBaseHousingTop) << "\" size=\"" << num(kBaseHousingRadius)
-     << "\" material=\"robot\" group=\"1\"/>\n";
+     << "      " << inertial_xml(robot.base, Pose::Identity()) << "\n";
+  // The housing below {B} (an arm whose {B} is at its shoulder, as the FT6's); an arm whose {B}
+  // is its mounting face (base_height 0) draws its base as link 1.
+  if (spec.base_height > kBaseHousingTop)
+    os << "      <geom type=\"cylinder\" fromto=\"0 0 " << num(-spec.base_height) << " 0 0 "
+       << num(-kBaseHousingTop) << "\" size=\"" << num(kBaseHousingRadius)
+       << "\" material=\"robot\" group=\"1\"/>\n";
   std::string indent = "      ";
   for (int i = 0; i < kNumJoints; ++i) {
     // Body i is D-H frame {i-1} turned by joint i about its z axis; it sits at the constant
@@ -343,11 +346,11 @@ std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec, const Casti
         "diffuse=\"0.6 0.6 0.6\" castshadow=\"true\"/>\n"
      << "    <light name=\"fill\" directional=\"true\" pos=\"-1 1 3\" dir=\"0.3 -0.2 -1\" "
         "diffuse=\"0.3 0.3 0.3\" castshadow=\"false\"/>\n"
-     << "    <geom name=\"floor\" type=\"plane\" size=\"3 3 0.1\" material=\"floor\"/>\n"
-     << "    <geom name=\"pedestal\" type=\"box\" pos=\"" << num(b.x()) << " " << num(b.y()) << " "
-     << num(pedestal_top / 2) << "\" size=\"" << num(kPedestalHalfWidth) << " "
-     << num(kPedestalHalfWidth) << " " << num(pedestal_top / 2)
-     << "\" material=\"table\"/>\n";
+     << "    <geom name=\"floor\" type=\"plane\" size=\"3 3 0.1\" material=\"floor\"/>\n";
+  if (pedestal_top > 1e-6)  // none for an arm standing on the floor
+    os << "    <geom name=\"pedestal\" type=\"box\" pos=\"" << num(b.x()) << " " << num(b.y())
+       << " " << num(pedestal_top / 2) << "\" size=\"" << num(kPedestalHalfWidth) << " "
+       << num(kPedestalHalfWidth) << " " << num(pedestal_top / 2) << "\" material=\"table\"/>\n";
   os << arm_mjcf(robot, spec.X_WB, spec);
   os << "    <body name=\"worktable\" " << pose_attrs(spec.X_WTable) << ">\n"
      << "      <geom name=\"table_top\" type=\"box\" pos=\"0 0 " << num(-ts.z() / 2)
@@ -691,9 +694,12 @@ void check_cell_layout(const CellSpec& spec, const TriangleMesh& nominal_C,
   const Vec3 p_WB = spec.X_WB.translation();
   const double pedestal_top = p_WB.z() - spec.base_height;
   const Pose X_WPedestal(Eigen::Translation3d(p_WB.x(), p_WB.y(), pedestal_top / 2));
-  const double pedestal = box_box_overlap(
-      X_WPedestal, Vec3(kPedestalHalfWidth, kPedestalHalfWidth, pedestal_top / 2), X_WTableBox,
-      table_half);
+  const double pedestal =
+      pedestal_top > 1e-6
+          ? box_box_overlap(X_WPedestal,
+                            Vec3(kPedestalHalfWidth, kPedestalHalfWidth, pedestal_top / 2),
+                            X_WTableBox, table_half)
+          : 0.0;
   if (pedestal > tol)
     throw ConfigError("cell.robot_base: expected the robot's pedestal (" +
                       m3(2 * kPedestalHalfWidth) + " x " + m3(2 * kPedestalHalfWidth) +
@@ -704,9 +710,12 @@ void check_cell_layout(const CellSpec& spec, const TriangleMesh& nominal_C,
   const double housing_len = std::abs(spec.base_height - kBaseHousingTop);
   const Pose X_WHousing =
       spec.X_WB * Pose(Eigen::Translation3d(0, 0, -(spec.base_height + kBaseHousingTop) / 2));
-  const double housing = box_box_overlap(
-      X_WHousing, Vec3(kBaseHousingRadius, kBaseHousingRadius, housing_len / 2), X_WTableBox,
-      table_half);
+  const double housing =
+      spec.base_height > kBaseHousingTop
+          ? box_box_overlap(X_WHousing,
+                            Vec3(kBaseHousingRadius, kBaseHousingRadius, housing_len / 2),
+                            X_WTableBox, table_half)
+          : 0.0;
   if (housing > tol)
     throw ConfigError("cell.robot_base: expected the robot's base housing (d" +
                       m3(2 * kBaseHousingRadius) + " m, " + m3(housing_len) +

@@ -308,3 +308,46 @@ TEST(UrdfIn, ChainsThatDoNotFitAreRefusedNamingWhy) {
   EXPECT_NE(urdf_error("<robot name=\"x\"><link name=\"a\"/>").find("arm.urdf: expected a URDF"),
             std::string::npos);
 }
+
+TEST(UrdfIn, TheRosIndustrialStyleKr16IsTheSameArmAsTheLibrarysForEveryAxisValue) {
+  // models/robots/urdf/kuka_kr16_2.urdf counts KUKA's A1..A6 (axes against z, zero stretched
+  // out); kuka_kr16.yaml is a D-H table with its controller mapping written by hand. Both map a
+  // KUKA axis value to the same flange pose, and the URDF's joint zero and directions become
+  // the same controller convention.
+  const RobotModel yaml = library_arm("kuka_kr16");
+  const RobotModel urdf_arm = load_robot(ftest::source_path("models/robots/urdf/kuka_kr16_2.urdf"));
+  EXPECT_EQ(arm_geometry(urdf_arm), ArmGeometry::kSphericalWrist);
+  Rng rng(16);
+  double worst_p = 0, worst_r = 0;
+  for (int n = 0; n < 2000; ++n) {
+    Vector6 A;
+    for (int i = 0; i < 6; ++i) {
+      const double lo = yaml.controller.sign[i] * yaml.limits[i].lower + yaml.controller.offset[i];
+      const double hi = yaml.controller.sign[i] * yaml.limits[i].upper + yaml.controller.offset[i];
+      A[i] = rng.uniform(std::min(lo, hi), std::max(lo, hi));
+    }
+    const Vector6 th_y = (A - yaml.controller.offset).cwiseQuotient(yaml.controller.sign);
+    const Vector6 th_u = (A - urdf_arm.controller.offset).cwiseQuotient(urdf_arm.controller.sign);
+    ASSERT_TRUE(urdf_arm.within_limits(th_u, 1e-9)) << n;
+    const Pose a = fk_flange(yaml, th_y) * yaml.tool.X_ET;
+    const Pose b = fk_flange(urdf_arm, th_u) * urdf_arm.tool.X_ET;
+    worst_p = std::max(worst_p, (a.translation() - b.translation()).norm());
+    worst_r = std::max(worst_r, rotation_distance(a.linear(), b.linear()));
+    // The derived table (another valid D-H choice: d4 < 0) goes through the IK as well.
+    const IkResult ik = ik_flange(urdf_arm, fk_flange(urdf_arm, th_u));
+    ASSERT_TRUE(ik.ok()) << ik.message;
+    double best = 1e9;
+    for (const auto& s : ik.solutions) {
+      worst_p = std::max(worst_p, (fk_flange(urdf_arm, s.q).translation() -
+                                   fk_flange(urdf_arm, th_u).translation()).norm());
+      best = std::min(best, wrapped_max_diff(s.q, th_u));
+    }
+    const auto sing = check_singularity(urdf_arm, th_u);
+    if (sing.wrist > 1e-3 && sing.elbow > 1e-3 && sing.shoulder > 1e-3) EXPECT_LT(best, 1e-7) << n;
+  }
+  EXPECT_LT(worst_p, 1e-9);
+  EXPECT_LT(worst_r, 1e-9);
+  // Velocity limits carried over joint by joint.
+  for (int i = 0; i < 6; ++i)
+    EXPECT_DOUBLE_EQ(urdf_arm.limits[i].velocity, yaml.limits[i].velocity);
+}

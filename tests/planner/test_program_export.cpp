@@ -1,5 +1,7 @@
 #include <gtest/gtest.h>
 
+#include <regex>
+
 #include <cmath>
 #include <fstream>
 #include <sstream>
@@ -407,6 +409,87 @@ TEST(ProgramExport, UrScriptServojAtATimeStep) {
   const ParsedProgram jp = parse_program(jprog.text, Pj);
   check_points(jp, jprog, f, false);
   for (std::size_t i = 1; i < jp.points.size(); ++i) EXPECT_GT(jp.points[i].speed, 0);
+}
+
+TEST(ProgramExport, RapidMoveLAndMoveAbsJPrograms) {
+  const Fixture f;
+  const ProgramParams P = f.params(ProgramDialect::kRapid, ProgramMotion::kLinear);
+  const RobotProgram prog = export_program(f.robot, f.traj, P);
+  const auto lines = lines_of(prog.text);
+  ASSERT_GE(lines.size(), 10u);
+  EXPECT_EQ(lines[0], "MODULE flash_seg_07");
+  EXPECT_EQ(lines.back(), "ENDMODULE");
+  EXPECT_EQ(count_lines_equal(prog.text, "  PROC main()"), 1);
+  EXPECT_EQ(count_lines_equal(prog.text, "  ENDPROC"), 1);
+  EXPECT_LT(prog.text.find("PERS tooldata"), prog.text.find("MoveAbsJ"));
+  EXPECT_LT(prog.text.find("PERS wobjdata"), prog.text.find("MoveAbsJ"));
+  const int movel = count_substr(prog.text, "    MoveL [[");
+  EXPECT_EQ(count_substr(prog.text, "MoveAbsJ"), 1);
+  EXPECT_EQ(static_cast<std::size_t>(movel) + 1, prog.samples.size());
+  EXPECT_EQ(count_substr(prog.text, ", fine, tFlashtwin"), 2);  // the approach and the last point
+  const ParsedProgram pp = parse_program(prog.text, P);
+  EXPECT_EQ(pp.name, "flash_seg_07");
+  EXPECT_EQ(pp.routines, 1);
+  check_frames(pp, f);
+  check_points(pp, prog, f, true);
+  for (std::size_t i = 1; i < pp.points.size(); ++i) {
+    EXPECT_EQ(pp.points[i].instruction, "MoveL");
+    EXPECT_GE(pp.points[i].speed, P.min_speed * 0.999);
+    EXPECT_LE(pp.points[i].speed, 0.05 * 1.001);
+  }
+  // confdata's cfx agrees with the IK branch of each sample: wrist centre behind axis 1 (+4)
+  // is the back branch, a negative axis 5 (+1) the flipped wrist.
+  std::istringstream in(prog.text);
+  std::string l;
+  std::size_t i = 0, matched = 0;
+  while (std::getline(in, l)) {
+    if (l.rfind("    MoveL ", 0) != 0) continue;
+    ++i;
+    std::smatch m;  // confdata [cf1, cf4, cf6, cfx] just before the external axes
+    ASSERT_TRUE(std::regex_search(l, m, std::regex(R"(\[(-?\d+), (-?\d+), (-?\d+), (\d)\], \[9E9)")))
+        << l;
+    const int cfx = std::stoi(m[4].str());
+    const Vector6 q = f.traj.q[prog.samples[i]];
+    const IkResult ik = ik_flange(f.robot, fk_flange(f.robot, q));
+    for (const auto& s : ik.solutions)
+      if ((s.q - q).cwiseAbs().maxCoeff() < 1e-6) {
+        ++matched;
+        EXPECT_EQ(cfx >= 4, !s.branch.front) << l;
+        EXPECT_EQ(cfx % 2 == 1, s.branch.flip) << l;
+      }
+  }
+  EXPECT_EQ(i, static_cast<std::size_t>(movel));
+  EXPECT_EQ(matched, i);
+
+  // Joint moves: MoveAbsJ through every exported sample.
+  const ProgramParams Pj = f.params(ProgramDialect::kRapid, ProgramMotion::kJoint);
+  const RobotProgram jprog = export_program(f.robot, f.traj, Pj);
+  const ParsedProgram jp = parse_program(jprog.text, Pj);
+  check_frames(jp, f);
+  check_points(jp, jprog, f, false);
+  EXPECT_EQ(jprog.text.find("MoveL"), std::string::npos);
+
+  // RAPID has no spline or servo motion here; malformed modules name the line.
+  ProgramParams bad = P;
+  bad.motion = ProgramMotion::kSpline;
+  EXPECT_THROW(export_program(f.robot, f.traj, bad), ArgumentError);
+  const auto error_of = [&](const std::string& t) {
+    try {
+      parse_program(t, P);
+    } catch (const ArgumentError& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  EXPECT_NE(error_of(prog.text.substr(0, prog.text.rfind("  ENDPROC"))).find("ENDPROC"),
+            std::string::npos);
+  EXPECT_NE(error_of("MODULE m\n  MoveL [[1, 2, 3], [1, 0, 0, 0]], v10, fine, t;\nENDMODULE\n")
+                .find("inside PROC"),
+            std::string::npos);
+  EXPECT_NE(error_of("MODULE m\n  PROC main()\n    MoveL [[1, 2], [1, 0, 0, 0]], v10, fine, t;\n"
+                     "  ENDPROC\nENDMODULE\n")
+                .find("[x, y, z]"),
+            std::string::npos);
 }
 
 TEST(ProgramExport, JointSignAndOffsetMapping) {

@@ -50,6 +50,9 @@ struct ToolDescription {
 struct ControllerAxes {
   Vector6 sign = Vector6::Ones();     ///< ±1
   Vector6 offset = Vector6::Zero();   ///< [rad]
+  /// The controller's program language: "krl" (KUKA), "rapid" (ABB), "urscript" (Universal
+  /// Robots) or "none" (no exporter for it: the trajectory CSV carries the motion).
+  std::string language = "krl";
 };
 
 /// Immutable robot description (Model apart from Data: no state in here).

@@ -35,7 +35,7 @@ UrPose ur_pose_from_pose(const Pose& X);
 /// Pose of a UR pose.
 Pose pose_from_ur_pose(const UrPose& p);
 
-enum class ProgramDialect { kKrl, kUrScript };
+enum class ProgramDialect { kKrl, kUrScript, kRapid };
 
 /// How the points are moved through.
 enum class ProgramMotion {
@@ -72,7 +72,8 @@ struct ProgramParams {
   double servo_gain = 300;       ///< UR servoj gain, 100 to 2000 [-]
 };
 
-/// Default options for `robot`: its controller's axis convention (robot.controller).
+/// Default options for `robot`: its controller's axis convention and language
+/// (robot.controller).
 ProgramParams program_params_for(const RobotModel& robot);
 
 /// A program as text, with the trajectory sample behind each motion instruction.
@@ -94,7 +95,7 @@ RobotProgram export_program(const RobotModel& robot, const JointTrajectory& traj
 /// Writes program.text to `path`. @throws IoError when the file cannot be written.
 void write_program(const RobotProgram& program, const std::string& path);
 
-/// File extension of a dialect's programs: ".src" (KRL), ".script" (URScript).
+/// File extension of a dialect's programs: ".src" (KRL), ".script" (URScript), ".mod" (RAPID).
 std::string program_extension(ProgramDialect dialect);
 
 /// Exports the trajectory with `params` and writes it to DIR/<params.name><extension>; returns
