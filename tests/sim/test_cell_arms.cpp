@@ -3,6 +3,10 @@
 // torque limits (real dynamics: a torque limit too small for the arm's own weight fails here).
 #include <gtest/gtest.h>
 
+#include <array>
+#include <cmath>
+#include <vector>
+
 #include "flashtwin/core/random.hpp"
 #include "flashtwin/planner/kinematics.hpp"
 #include "flashtwin/sim/cell.hpp"
@@ -68,6 +72,47 @@ TEST_P(CellArms, ServosHoldHomeAgainstGravityWithinTheirTorques) {
     // Holding the pose takes less than the joint's torque limit (the servo is not saturated).
     EXPECT_LT(std::abs(d->actuator_force[i]), 0.9 * robot.limits[i].torque)
         << robot.name << " joint " << i + 1;
+  }
+}
+
+namespace {
+
+// Joint-space inertia diagonal at home and the servos' stiffness and damping, from the MJCF.
+struct ServoAtHome {
+  std::array<double, kNumJoints> M{}, kp{}, damping{};
+};
+
+ServoAtHome servo_at_home(const RobotModel& robot) {
+  const auto m = sim::load_mjcf_string(sim::cell_mjcf(robot, sim::CellSpec{}), "cell.xml");
+  const auto d = sim::make_data(m.get());
+  mj_resetDataKeyframe(m.get(), d.get(), sim::require_id(m.get(), mjOBJ_KEY, "home"));
+  mj_forward(m.get(), d.get());
+  std::vector<mjtNum> M(m->nv * m->nv);
+  mj_fullM(m.get(), M.data(), d->qM);
+  ServoAtHome s;
+  for (int i = 0; i < kNumJoints; ++i) {
+    const int j = sim::require_id(m.get(), mjOBJ_JOINT, "joint" + std::to_string(i + 1));
+    const int v = m->jnt_dofadr[j];
+    s.M[i] = M[v * m->nv + v];
+    s.kp[i] = m->actuator_gainprm[i * mjNGAIN];
+    s.damping[i] = m->dof_damping[v];
+  }
+  return s;
+}
+
+}  // namespace
+
+// The library's servo gains follow one rule: each joint's bandwidth sqrt(kp/M) and damping ratio
+// at home are the FT6's (whose gains the executor and the sweeps were tuned with), so a heavier
+// arm is not a softer one.
+TEST_P(CellArms, ServoBandwidthIsTheFt6s) {
+  const ServoAtHome ft6 = servo_at_home(ftest::ft6()), arm = servo_at_home(robot);
+  for (int i = 0; i < kNumJoints; ++i) {
+    const double w_ft6 = std::sqrt(ft6.kp[i] / ft6.M[i]), w = std::sqrt(arm.kp[i] / arm.M[i]);
+    const double z_ft6 = ft6.damping[i] / (2 * std::sqrt(ft6.kp[i] * ft6.M[i]));
+    const double z = arm.damping[i] / (2 * std::sqrt(arm.kp[i] * arm.M[i]));
+    EXPECT_NEAR(w / w_ft6, 1.0, 0.01) << robot.name << " joint " << i + 1;
+    EXPECT_NEAR(z / z_ft6, 1.0, 0.01) << robot.name << " joint " << i + 1;
   }
 }
 
