@@ -351,3 +351,34 @@ TEST(UrdfIn, TheRosIndustrialStyleKr16IsTheSameArmAsTheLibrarysForEveryAxisValue
   for (int i = 0; i < 6; ++i)
     EXPECT_DOUBLE_EQ(urdf_arm.limits[i].velocity, yaml.limits[i].velocity);
 }
+
+TEST(UrdfIn, TheRosStyleUr10eIsTheSameArmAsTheLibrarysForEveryJointValue) {
+  // models/robots/urdf/ur10e.urdf as UR's ROS description lays it out: base_link turned 180°
+  // from the controller's base, rpy written as 1.570796327, 1e-11 m offsets. Read as a UR-type
+  // (offset-wrist) arm whose joint values are the controller's, it is ur10e.yaml seen from
+  // base_link.
+  const RobotModel yaml = library_arm("ur10e");
+  const RobotModel arm = load_robot(ftest::source_path("models/robots/urdf/ur10e.urdf"));
+  ASSERT_EQ(arm_geometry(arm), ArmGeometry::kOffsetWrist);
+  Pose X_baselink_base = Pose::Identity();
+  X_baselink_base.linear() = Eigen::AngleAxisd(M_PI, Vec3::UnitZ()).toRotationMatrix();
+  Rng rng(10);
+  double worst_p = 0, worst_r = 0;
+  for (int n = 0; n < 2000; ++n) {
+    Vector6 q;  // controller joint values within the URDF's limits (elbow ±π)
+    for (int i = 0; i < 6; ++i) q[i] = rng.uniform(i == 2 ? -M_PI : -2 * M_PI, i == 2 ? M_PI : 2 * M_PI);
+    const Vector6 th = (q - arm.controller.offset).cwiseQuotient(arm.controller.sign);
+    ASSERT_TRUE(arm.within_limits(th, 1e-9)) << n;
+    const Pose a = X_baselink_base * fk_tool(yaml, q), b = fk_tool(arm, th);
+    worst_p = std::max(worst_p, (a.translation() - b.translation()).norm());
+    worst_r = std::max(worst_r, rotation_distance(a.linear(), b.linear()));
+    const IkResult ik = ik_flange(arm, fk_flange(arm, th));
+    ASSERT_TRUE(ik.ok()) << ik.message;
+    for (const auto& s : ik.solutions)
+      worst_p = std::max(worst_p, (fk_flange(arm, s.q).translation() -
+                                   fk_flange(arm, th).translation()).norm());
+  }
+  // The URDF's rounded right angles (3e-10 rad) and 2e-11 m offsets are snapped to the table.
+  EXPECT_LT(worst_p, 1e-8);
+  EXPECT_LT(worst_r, 1e-8);
+}
