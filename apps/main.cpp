@@ -98,9 +98,18 @@ struct Common {
   bool json = false;
 };
 
-int cmd_fk(const Common& c, const std::string& q_text, bool degrees) {
+// The robot controller's axis values (robot.controller: A = sign·θ + offset) and back.
+ft::Vector6 axes_of(const ft::RobotModel& robot, const ft::Vector6& q) {
+  return robot.controller.sign.cwiseProduct(q) + robot.controller.offset;
+}
+ft::Vector6 q_of_axes(const ft::RobotModel& robot, const ft::Vector6& a) {
+  return (a - robot.controller.offset).cwiseQuotient(robot.controller.sign);
+}
+
+int cmd_fk(const Common& c, const std::string& q_text, bool degrees, bool axes) {
   const ft::RobotModel robot = ft::load_robot(c.robot);
-  const ft::Vector6 q = to_q(parse_numbers(q_text, 6, "--q"), degrees);
+  ft::Vector6 q = to_q(parse_numbers(q_text, 6, "--q"), degrees);
+  if (axes) q = q_of_axes(robot, q);
   const ft::Pose X_BE = ft::planner::fk_flange(robot, q);
   const ft::Pose X_BT = X_BE * robot.tool.X_ET;
   const auto sing = ft::planner::check_singularity(robot, q);
@@ -124,7 +133,7 @@ int cmd_fk(const Common& c, const std::string& q_text, bool degrees) {
 }
 
 int cmd_ik(const Common& c, const std::string& pose_text, bool tool, bool all,
-           const std::string& ref_text, bool degrees) {
+           const std::string& ref_text, bool degrees, bool axes) {
   const ft::RobotModel robot = ft::load_robot(c.robot);
   const auto v = parse_numbers(pose_text, 16, "--pose");
   std::array<double, 16> m{};
@@ -132,8 +141,13 @@ int cmd_ik(const Common& c, const std::string& pose_text, bool tool, bool all,
   const ft::Pose X = ft::pose_from_row_major(m, "--pose", 1e-6);
   ft::planner::IkParams p;
   p.within_limits_only = !all;
-  if (!ref_text.empty()) p.q_ref = to_q(parse_numbers(ref_text, 6, "--ref"), degrees);
-  const auto res = tool ? ft::planner::ik_tool(robot, X, p) : ft::planner::ik_flange(robot, X, p);
+  if (!ref_text.empty()) {
+    p.q_ref = to_q(parse_numbers(ref_text, 6, "--ref"), degrees);
+    if (axes) p.q_ref = q_of_axes(robot, *p.q_ref);
+  }
+  auto res = tool ? ft::planner::ik_tool(robot, X, p) : ft::planner::ik_flange(robot, X, p);
+  if (axes)
+    for (auto& s : res.solutions) s.q = axes_of(robot, s.q);
   const double scale = degrees ? 180 / M_PI : 1.0;
   if (c.json) {
     json j;
@@ -666,7 +680,8 @@ int main(int argc, char** argv) {
 
   Common common;
   auto add_robot = [&](CLI::App* sub) {
-    sub->add_option("--robot", common.robot, "Robot description YAML")
+    sub->add_option("--robot", common.robot,
+                    "Robot description: YAML (models/robots/) or URDF (.urdf: a serial 6R arm)")
         ->capture_default_str();
   };
 
@@ -676,6 +691,10 @@ int main(int argc, char** argv) {
   fk->add_option("--q", q_text, "Six joint angles \"q1 .. q6\" [rad, or deg with --deg]")
       ->required();
   fk->add_flag("--deg", deg, "Angles in degrees");
+  bool axes = false;
+  fk->add_flag("--axes", axes,
+               "--q holds the controller's axis values (the robot file's controller: sign, "
+               "offset; a URDF's own joint values), not D-H angles");
   fk->add_flag("--json", common.json, "Print JSON: X_BE and X_BT as 16 row-major numbers");
   add_robot(fk);
 
@@ -689,6 +708,7 @@ int main(int argc, char** argv) {
   ik->add_flag("--all", ik_all, "Also list solutions outside the joint limits");
   ik->add_option("--ref", ref_text, "Reference angles \"q1 .. q6\": nearest 2pi-equivalents");
   ik->add_flag("--deg", deg, "Print (and read --ref) in degrees");
+  ik->add_flag("--axes", axes, "Print (and read --ref) the controller's axis values, not D-H angles");
   ik->add_flag("--json", common.json, "Print JSON {\"solutions\": [[q1..q6], ...], ...}");
   add_robot(ik);
 
@@ -869,8 +889,8 @@ int main(int argc, char** argv) {
                           : verbosity == 1 ? spdlog::level::debug
                                            : spdlog::level::info);
   try {
-    if (*fk) return cmd_fk(common, q_text, deg);
-    if (*ik) return cmd_ik(common, pose_text, ik_tool, ik_all, ref_text, deg);
+    if (*fk) return cmd_fk(common, q_text, deg, axes);
+    if (*ik) return cmd_ik(common, pose_text, ik_tool, ik_all, ref_text, deg, axes);
     if (*ws) return cmd_workspace(common, samples, seed, ws_tool, out);
     if (*cell) return cmd_cell(common, scenario, out);
     if (*render)

@@ -85,6 +85,42 @@ TEST(Cli, FkThenIkRoundTrip) {
   EXPECT_TRUE(found) << ik.out;
 }
 
+TEST(Cli, ControllerAxesOfAUrdfArmAndItsLibraryTwinGiveOnePose) {
+  // KUKA's A1..A6 through the ROS-style URDF and through kuka_kr16.yaml's controller mapping.
+  const std::string a = "--q \"10 -80 95 20 60 -30\" --deg --axes --json --robot ";
+  const CliRun u = run("-q fk " + a + ftest::source_path("models/robots/urdf/kuka_kr16_2.urdf"));
+  const CliRun y = run("-q fk " + a + ftest::source_path("models/robots/kuka_kr16.yaml"));
+  ASSERT_EQ(u.code, 0) << u.err;
+  ASSERT_EQ(y.code, 0) << y.err;
+  const auto ju = nlohmann::json::parse(u.out), jy = nlohmann::json::parse(y.out);
+  for (int i = 0; i < 12; ++i)
+    EXPECT_NEAR(ju["X_BT"][i].get<double>(), jy["X_BT"][i].get<double>(), 1e-9) << i;
+  // ik --axes gives the axis values back among its solutions.
+  std::string pose;
+  for (const auto& v : jy["X_BE"]) pose += std::to_string(v.get<double>()) + " ";
+  const CliRun ik = run("-q ik --json --deg --axes --robot " +
+                        ftest::source_path("models/robots/kuka_kr16.yaml") + " --pose \"" + pose + "\"");
+  ASSERT_EQ(ik.code, 0) << ik.err;
+  bool found = false;
+  const double expect[6] = {10, -80, 95, 20, 60, -30};
+  const auto jik = nlohmann::json::parse(ik.out);
+  for (const auto& s : jik["solutions"]) {
+    double m = 0;
+    for (int i = 0; i < 6; ++i)  // up to whole turns (A6 may come back as 330°)
+      m = std::max(m, std::abs(std::remainder(s[i].get<double>() - expect[i], 360.0)));
+    found = found || m < 1e-3;
+  }
+  EXPECT_TRUE(found) << ik.out;
+  // A URDF that is not a 6R arm: exit 2 naming the file.
+  const std::string bad = ftest::temp_dir("cli_urdf") + "/five.urdf";
+  { std::ofstream(bad) << "<robot name=\"r\"><link name=\"a\"/></robot>"; }
+  const CliRun b = run("fk --q \"0 0 0 0 0 0\" --robot " + bad);
+  EXPECT_EQ(b.code, 2);
+  EXPECT_NE(b.err.find("five.urdf: expected a serial chain of 6 revolute joints, found 0"),
+            std::string::npos)
+      << b.err;
+}
+
 TEST(Cli, UnreachablePoseExitsOneWithReason) {
   const CliRun r = run("ik --json --pose \"1 0 0 3  0 1 0 0  0 0 1 0  0 0 0 1\"");
   EXPECT_EQ(r.code, 1);
