@@ -549,6 +549,7 @@ CellSetup setup_cell(const Scenario& sc) {
   // or scanner in the table) before anything runs in it; the message names the scenario field.
   try {
     sim::check_cell_layout(s.spec, s.casting.nominal);
+    sim::check_arm_clear_of_scanner(sc.robot, s.spec);
   } catch (const ConfigError& e) {
     if (sc.file.empty()) throw;
     throw ConfigError(sc.file + ": " + e.what());

@@ -23,6 +23,9 @@ namespace {
 constexpr double kPedestalHalfWidth = 0.2;   // [m] square pedestal from the floor up
 constexpr double kBaseHousingRadius = 0.11;  // [m] cylinder about z_B from base_height below {B}
 constexpr double kBaseHousingTop = 0.09;     // [m] ... up to this far below {B}
+// Radii of the capsules drawn along each link's D-H offsets [m] (links 1..6).
+constexpr double kLinkRadii[kNumJoints] = {0.08, 0.07, 0.06, 0.05, 0.045, 0.04};
+constexpr double kSpindleRadius = 0.035;      // [m] the spindle body's cylinder
 const Vec3 kScannerHeadCentre_M(0.0, 0.0, -0.04);  // [m] box centre in {M}
 const Vec3 kScannerHeadHalfSize(0.06, 0.09, 0.035);
 // Fixture blocks: half extents and the clearance to the casting they are laid out with.
@@ -248,7 +251,7 @@ std::vector<std::string> save_mujoco_mesh(const std::string& dir, const std::str
 
 std::string arm_mjcf(const RobotModel& robot, const Pose& X_WB, const CellSpec& spec) {
   std::ostringstream os;
-  const double radii[kNumJoints] = {0.08, 0.07, 0.06, 0.05, 0.045, 0.04};
+  const double* radii = kLinkRadii;
   os << "    <body name=\"base\" " << pose_attrs(X_WB) << ">\n"
      << "      " << inertial_xml(robot.base, Pose::Identity()) << "\n";
   // The housing below {B} (an arm whose {B} is at its shoulder, as the FT6's); an arm whose {B}
@@ -282,7 +285,7 @@ std::string arm_mjcf(const RobotModel& robot, const Pose& X_WB, const CellSpec& 
      << indent << "<body name=\"tool\" " << pose_attrs(C6) << ">\n"
      << indent << "  " << inertial_xml(tool.inertial, Pose::Identity()) << "\n"
      << indent << "  <geom name=\"spindle\" type=\"cylinder\" fromto=\"0 0 0 0 0 "
-     << num(std::max(0.0, tool_len - tool.length)) << "\" size=\"0.035\" contype=\"0\" "
+     << num(std::max(0.0, tool_len - tool.length)) << "\" size=\"" << num(kSpindleRadius) << "\" contype=\"0\" "
      << "conaffinity=\"0\" group=\"1\" material=\"spindle\"/>\n"
      << indent << "  <geom name=\"burr\" type=\"capsule\" fromto=\"" << vec3_string(tool.X_ET * Vec3(0, 0, -tool.length)) << " "
      << vec3_string(tool.X_ET * Vec3(0, 0, -tool.radius)) << "\" size=\"" << num(tool.radius)
@@ -729,6 +732,46 @@ void check_cell_layout(const CellSpec& spec, const TriangleMesh& nominal_C,
                       " x " + m3(2 * kScannerHeadHalfSize.z()) +
                       " m) clear of the worktable (cell.table), got them overlapping by " +
                       length_text(head));
+}
+
+// The arm at its home pose (the pose it scans in) against the scanner head: each link's capsules
+// along its D-H offsets and the spindle, sampled every 5 mm, against the head's box grown by the
+// capsule's radius.
+void check_arm_clear_of_scanner(const RobotModel& robot, const CellSpec& spec) {
+  const Pose X_WHead = spec.X_WM * Pose(Eigen::Translation3d(kScannerHeadCentre_M));
+  const auto depth_inside = [&](const Vec3& p_W, double radius) {
+    const Vec3 p = X_WHead.inverse() * p_W;
+    const Vec3 h = kScannerHeadHalfSize + Vec3::Constant(radius);
+    return std::min({h.x() - std::abs(p.x()), h.y() - std::abs(p.y()), h.z() - std::abs(p.z())});
+  };
+  std::string worst_part;
+  double worst = 0;
+  const auto segment = [&](const Vec3& a, const Vec3& b, double radius, const std::string& part) {
+    const int n = 1 + static_cast<int>((b - a).norm() / 0.005);
+    for (int k = 0; k <= n; ++k) {
+      const double d = depth_inside(a + (b - a) * (static_cast<double>(k) / n), radius);
+      if (d > worst) {
+        worst = d;
+        worst_part = part;
+      }
+    }
+  };
+  Pose X = spec.X_WB;
+  for (int i = 0; i < kNumJoints; ++i) {
+    X = X * Pose(Eigen::AngleAxisd(robot.home[i], Vec3::UnitZ()));
+    const Vec3 o = X.translation(), z_end = X * Vec3(0, 0, robot.dh[i].d);
+    const Vec3 a_end = X * Vec3(robot.dh[i].a, 0, robot.dh[i].d);
+    segment(o, z_end, kLinkRadii[i], "link " + std::to_string(i + 1));
+    segment(z_end, a_end, kLinkRadii[i], "link " + std::to_string(i + 1));
+    X = X * dh_constant(robot.dh[i]);
+  }
+  segment(X.translation(), X * robot.tool.X_ET.translation(), kSpindleRadius, "the spindle");
+  if (worst > 1e-4)
+    throw ConfigError(
+        "cell.scanner_mount: expected the scanner head clear of the arm at its home pose (the "
+        "pose it scans in; robot " + robot.name + "), got " + worst_part + " " +
+        length_text(worst) + " into it: move the scanner or the robot base, or give the robot "
+        "file a home away from the scanner");
 }
 
 }  // namespace flashtwin::sim

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <vector>
 
+#include "flashtwin/core/errors.hpp"
 #include "flashtwin/core/random.hpp"
 #include "flashtwin/planner/kinematics.hpp"
 #include "flashtwin/sim/cell.hpp"
@@ -119,3 +120,30 @@ TEST_P(CellArms, ServoBandwidthIsTheFt6s) {
 INSTANTIATE_TEST_SUITE_P(Library, CellArms,
                          ::testing::Values("ft6", "kuka_kr16", "abb_irb4600", "fanuc_m20ia",
                                            "ur10e"));
+
+// Every library arm waits at home clear of the default cell's scanner head (on the floor, the
+// UR10e on a pedestal at the table's height: the default scenario's cell with each arm), and an
+// arm parked through the head is refused naming the field and the link.
+TEST_P(CellArms, HomeIsClearOfTheScannerHead) {
+  sim::CellSpec spec;
+  spec.base_height = 0;
+  spec.X_WB = Pose(Eigen::Translation3d(0, 0, robot.name == "ur10e" ? 0.78 : 0.0));
+  if (robot.name == "ft6") spec = sim::CellSpec{};
+  EXPECT_NO_THROW(sim::check_arm_clear_of_scanner(robot, spec)) << robot.name;
+}
+
+TEST(CellArms, AnArmParkedThroughTheScannerHeadIsRefused) {
+  RobotModel kr16 = load_robot(ftest::source_path("models/robots/kuka_kr16.yaml"));
+  kr16.home[0] = 0;  // facing the table: the forearm passes through the head at 1.3 m
+  sim::CellSpec spec;
+  spec.base_height = 0;
+  spec.X_WB = Pose::Identity();
+  try {
+    sim::check_arm_clear_of_scanner(kr16, spec);
+    ADD_FAILURE() << "accepted";
+  } catch (const ConfigError& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("cell.scanner_mount"), std::string::npos) << m;
+    EXPECT_NE(m.find("link 4"), std::string::npos) << m;
+  }
+}

@@ -162,4 +162,10 @@ struct CellCheckParams {
 void check_cell_layout(const CellSpec& spec, const TriangleMesh& nominal_C,
                        const CellCheckParams& params = {});
 
+/// The arm at its home pose (where it waits while the cell scans) does not reach into the
+/// scanner head: the capsules drawn along each link's D-H offsets and the spindle, against the
+/// head's box. pipeline::setup_cell runs it for every scenario's cell.
+/// @throws ConfigError naming cell.scanner_mount, the part of the arm and how deep it goes.
+void check_arm_clear_of_scanner(const RobotModel& robot, const CellSpec& spec);
+
 }  // namespace flashtwin::sim
