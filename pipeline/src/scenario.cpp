@@ -236,6 +236,33 @@ YAML::Node apply_overrides(const std::string& path, const std::vector<std::strin
 
 }  // namespace
 
+namespace {
+
+// planning.branches: the IK branches a path may be ground in, as the planner names them
+// (front|back / up|down / noflip|flip), each part optional: [front] allows the four front
+// branches (the wrist centre ahead of the shoulder), [front/up] two.
+unsigned branch_mask_of(const ConfigNode& list) {
+  if (!list.is_sequence() || list.size() == 0)
+    list.fail("expected a list of IK branches, e.g. [front] or [front/up/noflip, front/up/flip]");
+  unsigned mask = 0;
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    const std::string want = list[i].as_string();
+    unsigned matched = 0;
+    for (int b = 0; b < 8; ++b) {
+      const std::string name = std::string(b < 4 ? "front" : "back") + "/" +
+                               ((b & 2) ? "down" : "up") + "/" + ((b & 1) ? "flip" : "noflip");
+      if (name == want || name.rfind(want + "/", 0) == 0) matched |= 1u << b;
+    }
+    if (!matched)
+      list[i].fail("expected a branch such as front, back, front/up or front/up/noflip, got '" +
+                   want + "'");
+    mask |= matched;
+  }
+  return mask;
+}
+
+}  // namespace
+
 Scenario load_scenario(const std::string& path, const std::vector<std::string>& overrides) {
   const ConfigNode root =
       overrides.empty() ? ConfigNode::load_file(path)
@@ -378,6 +405,7 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
         pl2.get_double("manipulability_threshold", 0, 1, g.manipulability_threshold);
     g.max_extra_tilt = pl2.get_double("max_extra_tilt", 0, M_PI / 4, g.max_extra_tilt);
     g.max_extra_lead = pl2.get_double("max_extra_lead", 0, M_PI / 2, g.max_extra_lead);
+    if (pl2.has("branches")) g.branch_mask = branch_mask_of(pl2.at("branches"));
   }
 
   if (root.has("tool")) {

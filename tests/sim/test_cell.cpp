@@ -632,3 +632,18 @@ TEST(ScanPlan, BadParametersAreArgumentErrors) {
                                     sim::ViewPlanParams{}),
                ArgumentError);
 }
+
+TEST(Scenario, PlanningBranchesRestrictTheIkBranches) {
+  const std::string path = ftest::source_path("scenarios/default.yaml");
+  EXPECT_EQ(pipeline::load_scenario(path).grind.branch_mask, 0xFFu);
+  EXPECT_EQ(pipeline::load_scenario(path, {"planning.branches=[front]"}).grind.branch_mask, 0x0Fu);
+  EXPECT_EQ(pipeline::load_scenario(path, {"planning.branches=[back/up, front/down/flip]"})
+                .grind.branch_mask,
+            (1u << 4) | (1u << 5) | (1u << 3));
+  try {
+    pipeline::load_scenario(path, {"planning.branches=[sideways]"});
+    ADD_FAILURE() << "accepted";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("planning.branches[0]"), std::string::npos) << e.what();
+  }
+}
