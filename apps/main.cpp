@@ -20,6 +20,7 @@
 #include "flashtwin/core/robot.hpp"
 #include "flashtwin/core/mesh_query.hpp"
 #include "flashtwin/perception/flash_detection.hpp"
+#include "flashtwin/pipeline/job.hpp"
 #include "flashtwin/pipeline/paths_io.hpp"
 #include "flashtwin/pipeline/pose_json.hpp"
 #include "flashtwin/pipeline/run.hpp"
@@ -425,6 +426,28 @@ int cmd_register(const Common& c, const std::string& source_path, const std::str
   return r.confident ? kExitOk : kExitFailed;
 }
 
+int cmd_job(const Common& c, ft::pipeline::JobInputs in, const std::string& scan_units,
+            const std::string& cad_units) {
+  const auto units = [](const std::string& u) {
+    return u == "m" ? ft::pipeline::Units::kMetres
+                    : (u == "mm" ? ft::pipeline::Units::kMillimetres : ft::pipeline::Units::kAuto);
+  };
+  in.scan_units = units(scan_units);
+  in.cad_units = units(cad_units);
+  const auto r = ft::pipeline::run_job(in);
+  if (c.json) {
+    std::cout << r.summary.dump() << "\n";
+  } else if (r.refused) {
+    std::printf("job refused: %s\n", r.reason.c_str());
+  } else {
+    std::printf("job: %zu path(s) planned for %s, programs (%s) in %s/plan/; %s/job.json\n",
+                r.summary.value("paths.count", std::size_t{0}), r.summary.value("robot", std::string()).c_str(),
+                r.summary.value("programs", std::string()).c_str(), in.out_dir.c_str(),
+                in.out_dir.c_str());
+  }
+  return r.refused ? kExitFailed : kExitOk;
+}
+
 int cmd_detect(const Common& c, const std::string& scan_path, const std::string& cad_path,
                const std::string& pose_path, const std::string& out) {
   const ft::PointCloud scan = read_points(scan_path);
@@ -777,6 +800,30 @@ int main(int argc, char** argv) {
                   "Sensor position \"x y z\" in the source frame, for normal orientation (ours)");
   reg->add_flag("--json", common.json, "Print T_target_source (16 numbers, row-major) and the verdict");
 
+  auto* job = app.add_subcommand(
+      "job", "A real cell's scan and the part's CAD (no ground truth) to the part's pose, its flash "
+             "paths, their plans and one robot program per path, or a refusal (exit 1) when the "
+             "pose is not confident or a path is not feasible; the rehearsal on the twin is not "
+             "implemented");
+  ft::pipeline::JobInputs job_in;
+  std::string job_scan_units = "auto", job_cad_units = "auto";
+  job->add_option("--scan", job_in.scan, "Scan PLY/PCD, points in the scanner frame {M}")->required();
+  job->add_option("--cad", job_in.cad, "CAD model of the part (STL/OBJ/PLY, its frame {C})")->required();
+  job->add_option("--cell", job_in.cell,
+                  "The cell: a scenario file (robot, cell.robot_base and cell.scanner_mount as "
+                  "calibrated, tool, tool_rack, planning, perception.detection); its casting block is "
+                  "not used")
+      ->required();
+  job->add_option("-o,--output", job_in.out_dir, "Output folder (job.json, paths.json, plans.json, plan/)")
+      ->required();
+  job->add_option("--scan-units", job_scan_units, "m, mm, or auto (a diagonal over 5 is mm)")
+      ->check(CLI::IsMember({"auto", "m", "mm"}))->capture_default_str();
+  job->add_option("--cad-units", job_cad_units, "m, mm, or auto")
+      ->check(CLI::IsMember({"auto", "m", "mm"}))->capture_default_str();
+  job->add_option("--threads", job_in.threads, "Threads of registration and detection")
+      ->capture_default_str()->check(CLI::Range(1, 64));
+  job->add_flag("--json", common.json, "Print job.json's content");
+
   auto* det = app.add_subcommand(
       "detect", "Find flashes in a registered scan: grinding paths on the CAD surface (exit 0 "
                 "with an empty path when there is nothing to grind)");
@@ -897,6 +944,7 @@ int main(int argc, char** argv) {
       return cmd_render(common, scenario, out, cameras, width, height, with_scan, with_truth);
     if (*scan) return cmd_scan(common, scenario, out, scan_seed);
     if (*det) return cmd_detect(common, scan_path, cad_path, pose_path, out);
+    if (*job) return cmd_job(common, job_in, job_scan_units, job_cad_units);
     if (*run)
       return cmd_run(common, scenario, out, run_seed, sets, run_video, video_path, no_report,
                      run_check, run_threads);

@@ -28,6 +28,7 @@
 #include "flashtwin/pipeline/report.hpp"
 #include "flashtwin/sim/cell.hpp"
 #include "flashtwin/sim/scan_cell.hpp"
+#include "stages.hpp"
 
 namespace flashtwin::pipeline {
 
@@ -386,14 +387,6 @@ namespace {
 // --- Stages of a run. Each writes its metrics into the json it is given (a second setup's go
 // under "setup2.", merge_second_setup).
 
-/// What perception made of one setup's scan.
-struct Perception {
-  perception::RegistrationResult registration;
-  perception::DetectionResult detection;  ///< ran only with a confident pose
-  Pose X_CM_est = Pose::Identity();
-  double time_s = 0;
-};
-
 // Pose, then flashes. Inputs: the scan in {M}, the CAD model, X_WM as calibrated (nominal),
 // never the truth; the truth only scores the pose (registration.*).
 Perception perceive(const Scenario& sc, const ScenarioScan& ss, const RunOptions& opt, json& m) {
@@ -527,13 +520,7 @@ void write_plan_files(const Scenario& sc, const planner::GrindResult& g, const f
   }
 }
 
-/// One setup's plans.
-struct Plans {
-  std::vector<PlannedPath> paths;  ///< every grinding motion (a path in pieces: one per piece)
-  std::vector<std::size_t> failed_paths;  ///< detected paths that could not be planned
-  std::string first_failure;
-  double time_s = 0;
-};
+}  // namespace
 
 // One grinding motion per path (or per piece of it), on the casting where perception put it
 // (trajectory.*). `dir` empty: nothing written.
@@ -605,6 +592,8 @@ Plans plan_setup(const Scenario& sc, const CellSetup& setup, const Perception& p
   if (!dir.empty()) write_text_file((dir / "plans.json").string(), plans.dump(1) + "\n");
   return out;
 }
+
+namespace {
 
 // The cell's scan metrics (scan.*) of one setup.
 void scan_metrics(const ScenarioScan& ss, json& m) {

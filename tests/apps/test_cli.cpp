@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "flashtwin/core/mesh.hpp"
+#include "flashtwin/core/transform.hpp"
 #include "test_util.hpp"
 
 namespace {
@@ -119,6 +120,64 @@ TEST(Cli, ControllerAxesOfAUrdfArmAndItsLibraryTwinGiveOnePose) {
   EXPECT_NE(b.err.find("five.urdf: expected a serial chain of 6 revolute joints, found 0"),
             std::string::npos)
       << b.err;
+}
+
+namespace {
+
+flashtwin::Pose pose_of(const nlohmann::json& v) {
+  Eigen::Matrix4d M;
+  for (int i = 0; i < 16; ++i) M(i / 4, i % 4) = v[i].get<double>();
+  flashtwin::Pose X;
+  X.matrix() = M;
+  return X;
+}
+
+}  // namespace
+
+// `flashtwin job` on inputs that carry no ground truth: a scan exported by `flashtwin scan`
+// read back as a plain PLY, the CAD as STL, the default scenario as the cell file. The pose it
+// finds is the cell's true one; in millimetres (scan and CAD) it is the same job; a CAD that is
+// not the scanned part is refused with no program written.
+TEST(Cli, JobFromAPlainScanAndCadPlansThePartWhereItIs) {
+  const std::string d = ftest::temp_dir("cli_job");
+  ASSERT_EQ(run("-q scan " + ftest::source_path("scenarios/default.yaml") + " -o " + d + "/scan").code, 0);
+  const std::string cell = ftest::source_path("scenarios/default.yaml");
+  const CliRun j = run("-q job --json --scan " + d + "/scan/scan.ply --cad " + d +
+                       "/scan/cell/casting_cad.stl --cell " + cell + " -o " + d + "/job");
+  ASSERT_EQ(j.code, 0) << j.err;
+  const auto js = nlohmann::json::parse(j.out);
+  EXPECT_TRUE(js["registration.confident"].get<bool>());
+  EXPECT_GT(js["paths.count"].get<int>(), 0);
+  EXPECT_EQ(js["trajectory.paths_failed"].get<int>(), 0);
+  EXPECT_TRUE(std::filesystem::exists(d + "/job/plan/path_0/flashtwin_path_0.src"));
+  // The truth the scan command wrote (the job never read it): X_WC; the cell's X_WB.
+  std::ifstream tf(d + "/scan/cell/truth/flash_truth.json");
+  const auto truth = nlohmann::json::parse(tf);
+  const flashtwin::Pose X_BC_true = flashtwin::Pose(Eigen::Translation3d(0, 0, 0.95)).inverse() * pose_of(truth["X_WC"]);
+  const flashtwin::Pose X_BC = pose_of(js["X_BC"]);
+  EXPECT_LT((X_BC.translation() - X_BC_true.translation()).norm(), 1e-4);
+  EXPECT_LT(flashtwin::rotation_distance(X_BC.linear(), X_BC_true.linear()) * 180 / M_PI, 0.05);
+
+  // The same scan and CAD in millimetres: units guessed, the same pose.
+  flashtwin::PointCloud mm = flashtwin::load_cloud(d + "/scan/scan.ply");
+  for (auto& p : mm.points) p *= 1000.0f;
+  flashtwin::save_ply(d + "/scan_mm.ply", mm);
+  flashtwin::TriangleMesh cad = flashtwin::load_mesh(d + "/scan/cell/casting_cad.stl", 1000.0);
+  flashtwin::save_mesh(d + "/cad_mm.stl", cad);
+  const CliRun jm = run("-q job --json --scan " + d + "/scan_mm.ply --cad " + d + "/cad_mm.stl --cell " +
+                        cell + " -o " + d + "/job_mm");
+  ASSERT_EQ(jm.code, 0) << jm.err;
+  const flashtwin::Pose X_BC_mm = pose_of(nlohmann::json::parse(jm.out)["X_BC"]);
+  EXPECT_LT((X_BC_mm.translation() - X_BC_true.translation()).norm(), 1e-4);
+
+  // Another part's CAD (the cover family's): refused, exit 1, no program.
+  ASSERT_EQ(run("-q cell " + ftest::source_path("scenarios/cover.yaml") + " -o " + d + "/cover").code, 0);
+  const CliRun jr = run("-q job --scan " + d + "/scan/scan.ply --cad " + d +
+                        "/cover/casting_cad.stl --cell " + cell + " -o " + d + "/job_wrong");
+  EXPECT_EQ(jr.code, 1) << jr.out << jr.err;
+  EXPECT_NE(jr.out.find("job refused"), std::string::npos) << jr.out;
+  EXPECT_FALSE(std::filesystem::exists(d + "/job_wrong/plan"));
+  EXPECT_TRUE(std::filesystem::exists(d + "/job_wrong/job.json"));
 }
 
 TEST(Cli, UnreachablePoseExitsOneWithReason) {
