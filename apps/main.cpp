@@ -440,8 +440,14 @@ int cmd_job(const Common& c, ft::pipeline::JobInputs in, const std::string& scan
   } else if (r.refused) {
     std::printf("job refused: %s\n", r.reason.c_str());
   } else {
-    std::printf("job: %zu path(s) planned for %s, programs (%s) in %s/plan/; %s/job.json\n",
-                r.summary.value("paths.count", std::size_t{0}), r.summary.value("robot", std::string()).c_str(),
+    std::printf("job: %zu path(s) planned for %s; rehearsal: %.1f %% of the scanned flash removed, "
+                "highest residual %.2f mm, deepest gouge %.2f mm; programs (%s) in %s/plan/; "
+                "%s/job.json\n",
+                r.summary.value("paths.count", std::size_t{0}),
+                r.summary.value("robot", std::string()).c_str(),
+                100 * r.summary.value("rehearsal.removal.flash_removed_fraction", 0.0),
+                r.summary.value("rehearsal.removal.residual_flash_max_mm", 0.0),
+                r.summary.value("rehearsal.removal.gouge_max_mm", 0.0),
                 r.summary.value("programs", std::string()).c_str(), in.out_dir.c_str(),
                 in.out_dir.c_str());
   }
@@ -802,9 +808,10 @@ int main(int argc, char** argv) {
 
   auto* job = app.add_subcommand(
       "job", "A real cell's scan and the part's CAD (no ground truth) to the part's pose, its flash "
-             "paths, their plans and one robot program per path, or a refusal (exit 1) when the "
-             "pose is not confident or a path is not feasible; the rehearsal on the twin is not "
-             "implemented");
+             "paths, their plans, a rehearsal on the twin (the scanned flash as material, ground "
+             "in MuJoCo) and one robot program per path; or a refusal (exit 1, job.json says why) "
+             "when the pose is not confident, a path is not feasible or the rehearsal misses the "
+             "quality limits");
   ft::pipeline::JobInputs job_in;
   std::string job_scan_units = "auto", job_cad_units = "auto";
   job->add_option("--scan", job_in.scan, "Scan PLY/PCD, points in the scanner frame {M}")->required();

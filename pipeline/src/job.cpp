@@ -12,7 +12,9 @@
 #include "flashtwin/core/mesh.hpp"
 #include "flashtwin/core/mesh_query.hpp"
 #include "flashtwin/pipeline/pose_json.hpp"
+#include "flashtwin/pipeline/execution.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
+#include "flashtwin/sim/cell.hpp"
 #include "stages.hpp"
 
 namespace flashtwin::pipeline {
@@ -71,6 +73,133 @@ JobResult refuse(JobResult r, const std::string& reason, const fs::path& dir) {
   return r;
 }
 
+// ---- Rehearsal: the flash as the scan shows it, as material on the CAD part, ground in the
+// twin with the planned motions.
+
+// Heights along a path: each flash point of its region (in {C}) raises the height at the path
+// point nearest to it to its distance from the CAD; path points no flash point fell to take
+// the nearest assigned neighbour's; none at all: the region's height.
+std::vector<double> heights_along(const perception::FlashPath& path,
+                                  const std::vector<Vec3>& flash_C, const MeshBvh& cad) {
+  const std::size_t n = path.points_C.size();
+  std::vector<double> h(n, -1.0);
+  for (const Vec3& q : flash_C) {
+    std::size_t best = 0;
+    double best_d = 1e300;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double d = (path.points_C[i] - q).squaredNorm();
+      if (d < best_d) {
+        best_d = d;
+        best = i;
+      }
+    }
+    h[best] = std::max(h[best], cad.closest(q, 0.05).distance);
+  }
+  for (std::size_t i = 0; i < n; ++i) {
+    if (h[i] >= 0) continue;
+    double v = -1;
+    for (std::size_t r = 1; r < n && v < 0; ++r) {
+      if (i >= r && h[i - r] >= 0) v = h[i - r];
+      else if (i + r < n && h[i + r] >= 0) v = h[i + r];
+    }
+    h[i] = v >= 0 ? v : path.fin_height;
+  }
+  return h;
+}
+
+// A fin as a closed slab along the root: at each root point a cross-section of `thickness`
+// across the fin plane normal, from `sink` inside the body up to the local height along the
+// outward CAD normal; quads between sections, end caps on an open line; outward-oriented.
+sim::Fin fin_from_path(const perception::FlashPath& path, const std::vector<double>& h,
+                       double thickness) {
+  constexpr double kSink = 3e-4;  // [m] into the body, so the fin meets it without a gap
+  const std::size_t n = path.points_C.size();
+  sim::Fin fin;
+  fin.kind = "rehearsal";
+  fin.root = path.points_C;
+  fin.closed = path.closed;
+  fin.thickness = thickness;
+  TriangleMesh& m = fin.mesh;
+  for (std::size_t i = 0; i < n; ++i) {
+    const Vec3 up = path.normals_C[i].normalized();
+    Vec3 across = path.fin_normal_C - path.fin_normal_C.dot(up) * up;
+    if (across.norm() < 1e-6) across = up.unitOrthogonal();
+    across.normalize();
+    const Vec3& r = path.points_C[i];
+    const Vec3 a = 0.5 * thickness * across;
+    for (const Vec3& v : {Vec3(r - a - kSink * up), Vec3(r + a - kSink * up),
+                          Vec3(r + a + h[i] * up), Vec3(r - a + h[i] * up)})
+      m.vertices.push_back(v);
+    fin.max_height = std::max(fin.max_height, h[i]);
+  }
+  const auto quad = [&](int a, int b, int c, int d) {
+    m.triangles.push_back({a, b, c});
+    m.triangles.push_back({a, c, d});
+  };
+  const std::size_t segments = path.closed ? n : n - 1;
+  for (std::size_t i = 0; i < segments; ++i) {
+    const int s = static_cast<int>(4 * i), t = static_cast<int>(4 * ((i + 1) % n));
+    for (int k = 0; k < 4; ++k) quad(s + k, t + k, t + (k + 1) % 4, s + (k + 1) % 4);
+  }
+  if (!path.closed) {
+    const int e = static_cast<int>(4 * (n - 1));
+    quad(0, 3, 2, 1);
+    quad(e, e + 1, e + 2, e + 3);
+  }
+  if (m.volume() < 0)
+    for (auto& t : m.triangles) std::swap(t[1], t[2]);
+  fin.volume = std::abs(m.volume());
+  return fin;
+}
+
+// The part the scan shows: the CAD body and one fin per detected path (regions unseen at their
+// edge get a 0.8 mm thickness, the middle of the 0.3-1.5 mm castings have).
+sim::Casting part_as_scanned(const TriangleMesh& cad, const Perception& perc,
+                             const PointCloud& scan_M) {
+  sim::Casting part;
+  part.nominal = cad;
+  const MeshBvh bvh(cad);
+  const auto& det = perc.detection;
+  for (const auto& path : det.paths) {
+    if (path.points_C.size() < 2) continue;
+    std::vector<Vec3> flash_C;
+    double thickness = 8e-4;
+    if (path.region >= 0 && path.region < static_cast<int>(det.regions.size())) {
+      const auto& reg = det.regions[static_cast<std::size_t>(path.region)];
+      for (const auto idx : reg.points)
+        flash_C.push_back(perc.X_CM_est * scan_M.points[idx].cast<double>());
+      if (reg.thickness > 0) thickness = reg.thickness;
+    }
+    part.fins.push_back(fin_from_path(path, heights_along(path, flash_C, bvh), thickness));
+  }
+  return part;
+}
+
+// Grinds the part as scanned with the plans in the twin: DIR/rehearsal/cell/ and the
+// rehearsal.* metrics (removal, execution, force, quality) into `m`.
+bool rehearse(const Scenario& sc, const CellSetup& cell, const Perception& perc,
+              const PointCloud& scan_M, const Plans& plans, const fs::path& dir, json& m) {
+  CellSetup setup;
+  setup.casting = part_as_scanned(cell.casting.nominal, perc, scan_M);
+  setup.spec = cell.spec;
+  setup.spec.X_WC = cell.spec.X_WM * perc.X_CM_est.inverse();
+  ScenarioScan ss;
+  ss.setup = setup;
+  ss.files = sim::write_cell(sc.robot, setup.spec, setup.casting, (dir / "rehearsal" / "cell").string());
+  Execution ex(sc, ss.setup.casting);
+  ex.run(ss, plans.paths);
+  json r;
+  ex.finish(r);
+  double flash = 0;
+  for (const auto& f : setup.casting.fins) flash += f.volume;
+  r["flash_volume_mm3"] = flash * 1e9;
+  const auto failures = quality_failures(sc.quality, r);
+  r["quality.pass"] = failures.empty();
+  r["quality.failures"] = failures;
+  for (auto it = r.begin(); it != r.end(); ++it) m["rehearsal." + it.key()] = it.value();
+  return failures.empty();
+}
+
 }  // namespace
 
 JobResult run_job(const JobInputs& in) {
@@ -126,6 +255,12 @@ JobResult run_job(const JobInputs& in) {
     fs::remove_all(staging);
     return refuse(std::move(r), "not every path is feasible: " + plans.first_failure, dir);
   }
+  if (!rehearse(sc, setup, perc, scan_M, plans, dir, m)) {
+    fs::remove_all(staging);
+    return refuse(std::move(r), "the rehearsal predicts a part outside its quality limits: " +
+                                    m["rehearsal.quality.failures"].dump(),
+                  dir);
+  }
   for (const char* name : {"plan", "plans.json", "trajectory.csv"}) {
     fs::remove_all(dir / name);
     if (fs::exists(staging / name)) fs::rename(staging / name, dir / name);
@@ -133,7 +268,6 @@ JobResult run_job(const JobInputs& in) {
   fs::remove_all(staging);
   m["refused"] = false;
   m["programs"] = sc.robot.controller.language;
-  m["rehearsal"] = "not implemented: the programs are not replayed on the twin";
   write_text_file((dir / "job.json").string(), m.dump(1) + "\n");
   return r;
 }

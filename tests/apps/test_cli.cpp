@@ -158,6 +158,17 @@ TEST(Cli, JobFromAPlainScanAndCadPlansThePartWhereItIs) {
   EXPECT_LT((X_BC.translation() - X_BC_true.translation()).norm(), 1e-4);
   EXPECT_LT(flashtwin::rotation_distance(X_BC.linear(), X_BC_true.linear()) * 180 / M_PI, 0.05);
 
+  // The rehearsal (the scanned flash as material, ground with the plans) predicts what the
+  // twin's own run of the same seed measures against its truth: removal within 2 %.
+  EXPECT_TRUE(js["rehearsal.quality.pass"].get<bool>()) << js["rehearsal.quality.failures"].dump();
+  ASSERT_EQ(run("-q run " + cell + " --no-report -o " + d + "/run").code, 0);
+  std::ifstream mf(d + "/run/metrics.json");
+  const auto twin = nlohmann::json::parse(mf);
+  EXPECT_NEAR(js["rehearsal.removal.flash_removed_fraction"].get<double>(),
+              twin["removal.flash_removed_fraction"].get<double>(), 0.02);
+  EXPECT_NEAR(js["rehearsal.removal.gouge_max_mm"].get<double>(),
+              twin["removal.gouge_max_mm"].get<double>(), 0.05);
+
   // The same scan and CAD in millimetres: units guessed, the same pose.
   flashtwin::PointCloud mm = flashtwin::load_cloud(d + "/scan/scan.ply");
   for (auto& p : mm.points) p *= 1000.0f;

@@ -1,6 +1,7 @@
 #pragma once
 // `flashtwin job`: a scan from a real cell and the part's CAD (no ground truth anywhere) to the
-// part's pose, its flash paths, their plans and the robot programs, or a refusal with the reason.
+// part's pose, its flash paths, their plans, a rehearsal of them on the twin and the robot
+// programs, or a refusal with the reason.
 #include <string>
 
 #include <nlohmann/json.hpp>
@@ -22,16 +23,20 @@ struct JobInputs {
 };
 
 struct JobResult {
-  bool refused = false;         ///< pose not confident or a path not feasible: no program written
+  bool refused = false;  ///< pose not confident, a path not feasible or the rehearsal failed: no program
   std::string reason;           ///< one line, when refused
   nlohmann::ordered_json summary;  ///< what DIR/job.json holds
 };
 
 /// Registration (the cell's calibrated X_WM and the CAD), flash detection, planning in the
-/// cell's robot base and one program per path in the robot's controller language, written to
-/// DIR/plan/path_K/ with DIR/paths.json, DIR/plans.json and DIR/job.json. Refuses (no program
-/// written) when the pose is not confident or any path cannot be planned. The rehearsal of the
-/// programs on the twin is not implemented (job.json says so).
+/// cell's robot base, then the rehearsal: the flash the scan shows rebuilt as material on the
+/// CAD part (one slab per detected path: its root, the heights of its region's flash points,
+/// the region's thickness) at the estimated pose, ground in MuJoCo with the plans
+/// (rehearsal.removal.*, execution.*, force.*, quality.*; DIR/rehearsal/cell/). One program per
+/// path in the robot's controller language, written to DIR/plan/path_K/ with DIR/paths.json,
+/// DIR/plans.json and DIR/job.json. Refuses (no program written, job.json says why) when the
+/// pose is not confident, a path cannot be planned or the rehearsal's part misses the cell
+/// file's quality limits. Moves between paths are not rehearsed (as in `run`).
 /// @throws InputError (missing/unreadable/malformed files, bad cell file), IoError.
 JobResult run_job(const JobInputs& inputs);
 
