@@ -99,18 +99,10 @@ struct Common {
   bool json = false;
 };
 
-// The robot controller's axis values (robot.controller: A = sign·θ + offset) and back.
-ft::Vector6 axes_of(const ft::RobotModel& robot, const ft::Vector6& q) {
-  return robot.controller.sign.cwiseProduct(q) + robot.controller.offset;
-}
-ft::Vector6 q_of_axes(const ft::RobotModel& robot, const ft::Vector6& a) {
-  return (a - robot.controller.offset).cwiseQuotient(robot.controller.sign);
-}
-
 int cmd_fk(const Common& c, const std::string& q_text, bool degrees, bool axes) {
   const ft::RobotModel robot = ft::load_robot(c.robot);
   ft::Vector6 q = to_q(parse_numbers(q_text, 6, "--q"), degrees);
-  if (axes) q = q_of_axes(robot, q);
+  if (axes) q = robot.controller.joints(q);
   const ft::Pose X_BE = ft::planner::fk_flange(robot, q);
   const ft::Pose X_BT = X_BE * robot.tool.X_ET;
   const auto sing = ft::planner::check_singularity(robot, q);
@@ -144,11 +136,11 @@ int cmd_ik(const Common& c, const std::string& pose_text, bool tool, bool all,
   p.within_limits_only = !all;
   if (!ref_text.empty()) {
     p.q_ref = to_q(parse_numbers(ref_text, 6, "--ref"), degrees);
-    if (axes) p.q_ref = q_of_axes(robot, *p.q_ref);
+    if (axes) p.q_ref = robot.controller.joints(*p.q_ref);
   }
   auto res = tool ? ft::planner::ik_tool(robot, X, p) : ft::planner::ik_flange(robot, X, p);
   if (axes)
-    for (auto& s : res.solutions) s.q = axes_of(robot, s.q);
+    for (auto& s : res.solutions) s.q = robot.controller.axes(s.q);
   const double scale = degrees ? 180 / M_PI : 1.0;
   if (c.json) {
     json j;

@@ -46,17 +46,17 @@ bool near_exact(double v, double t) { return std::abs(v - t) < 1e-12; }
 ArmGeometry arm_geometry(const RobotModel& r) {
   const double h = M_PI / 2;
   const auto& dh = r.dh;
-  const bool spherical = near_exact(dh[0].alpha, -h) && near_exact(dh[1].alpha, 0) &&
-                         near_exact(dh[2].alpha, -h) && near_exact(dh[3].alpha, h) &&
-                         near_exact(dh[4].alpha, -h) && near_exact(dh[5].alpha, 0) && near_exact(dh[3].a, 0) &&
-                         near_exact(dh[4].a, 0) && near_exact(dh[5].a, 0) && near_exact(dh[4].d, 0) &&
-                         std::hypot(dh[2].a, dh[3].d) > 1e-9 && std::abs(dh[1].a) > 1e-9;
-  if (spherical) return ArmGeometry::kSphericalWrist;
-  const bool offset_wrist = near_exact(dh[0].alpha, h) && near_exact(dh[1].alpha, 0) &&
-                            near_exact(dh[2].alpha, 0) && near_exact(dh[3].alpha, h) &&
-                            near_exact(dh[4].alpha, -h) && near_exact(dh[5].alpha, 0) && near_exact(dh[3].a, 0) &&
-                            near_exact(dh[4].a, 0) && near_exact(dh[5].a, 0) && std::abs(dh[1].a) > 1e-9 &&
-                            std::abs(dh[2].a) > 1e-9;
+  const auto alphas = [&](double a1, double a2, double a3) {
+    return near_exact(dh[0].alpha, a1) && near_exact(dh[1].alpha, 0) &&
+           near_exact(dh[2].alpha, a2) && near_exact(dh[3].alpha, a3) &&
+           near_exact(dh[4].alpha, -h) && near_exact(dh[5].alpha, 0);
+  };
+  // Both types: no common-normal length after joint 4 (a4 = a5 = a6 = 0), an upper arm a2.
+  const bool wrist_a = near_exact(dh[3].a, 0) && near_exact(dh[4].a, 0) &&
+                       near_exact(dh[5].a, 0) && std::abs(dh[1].a) > 1e-9;
+  if (alphas(-h, -h, h) && wrist_a && near_exact(dh[4].d, 0) && std::hypot(dh[2].a, dh[3].d) > 1e-9)
+    return ArmGeometry::kSphericalWrist;
+  const bool offset_wrist = alphas(h, 0, h) && wrist_a && std::abs(dh[2].a) > 1e-9;
   return offset_wrist ? ArmGeometry::kOffsetWrist : ArmGeometry::kUnsupported;
 }
 
@@ -237,7 +237,7 @@ std::string robot_urdf(const RobotModel& robot) {
      << "<robot name=\"" << robot.name << "\">\n";
   os << "  <link name=\"base_link\">\n" << inertial_xml(robot.base, Pose::Identity())
      << "  </link>\n";
-  const double radii[kNumJoints] = {0.08, 0.07, 0.06, 0.05, 0.045, 0.04};
+  const auto& radii = kLinkDrawRadii;
   for (int i = 0; i < kNumJoints; ++i) {
     const std::string link = "link" + std::to_string(i + 1);
     const std::string parent = i == 0 ? "base_link" : "link" + std::to_string(i);

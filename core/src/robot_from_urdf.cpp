@@ -16,7 +16,6 @@
 
 #include <cmath>
 #include <functional>
-#include <map>
 #include <optional>
 #include <sstream>
 
@@ -69,7 +68,6 @@ struct Chain {
   std::vector<AxisLine> axes;
   std::vector<ChainLink> links;
   Pose X_BF = Pose::Identity();  // the flange link (tool0, flange or the last link) at zero
-  std::string flange_name;
 };
 
 bool has_moving_joint_below(const urdf::Link& link) {
@@ -122,7 +120,6 @@ Chain walk_chain(const urdf::ModelInterface& model, const std::string& file) {
   for (const auto& l : ch.links)
     if (!pick && l.link->name == last_child) pick = l;
   ch.X_BF = pick->X_BL;
-  ch.flange_name = pick->link->name;
   return ch;
 }
 
@@ -296,7 +293,9 @@ RobotModel robot_from_urdf(const std::string& xml, const std::string& file) {
     const urdf::Joint& j = *ch.axes[i].joint;
     JointLimits& L = r.limits[i];
     const double s = f.sign[i], t0 = f.theta0[i];
-    double lo = -2 * M_PI, hi = 2 * M_PI;
+    if (!j.limits || !(j.limits->velocity > 0) || !(j.limits->effort > 0))
+      fail(file, "joint '" + j.name + "': expected <limit> with velocity > 0 and effort > 0");
+    double lo = -2 * M_PI, hi = 2 * M_PI;  // continuous
     if (j.type == urdf::Joint::REVOLUTE) {
       lo = j.limits->lower;
       hi = j.limits->upper;
@@ -306,8 +305,6 @@ RobotModel robot_from_urdf(const std::string& xml, const std::string& file) {
     }
     L.lower = std::min(s * lo, s * hi) + t0;
     L.upper = std::max(s * lo, s * hi) + t0;
-    if (!j.limits || !(j.limits->velocity > 0) || !(j.limits->effort > 0))
-      fail(file, "joint '" + j.name + "': expected <limit> with velocity > 0 and effort > 0");
     L.velocity = j.limits->velocity;
     L.torque = j.limits->effort;
     L.acceleration = kAccel[i];
@@ -316,10 +313,10 @@ RobotModel robot_from_urdf(const std::string& xml, const std::string& file) {
     r.home[i] = std::clamp(t0, L.lower, L.upper);
   }
   spdlog::info("{}: URDF arm '{}' read as a {} D-H table ({}); joint accelerations are not in "
-               "URDF, assumed 10, 10, 12, 25, 25, 35 rad/s^2",
+               "URDF, assumed {:g}, {:g}, {:g}, {:g}, {:g}, {:g} rad/s^2",
                file, r.name,
                arm_geometry(r) == ArmGeometry::kSphericalWrist ? "spherical-wrist" : "UR-type",
-               table_text(r.dh));
+               table_text(r.dh), kAccel[0], kAccel[1], kAccel[2], kAccel[3], kAccel[4], kAccel[5]);
 
   // Mass properties; a body the URDF gives no mass gets a stand-in, said aloud.
   const auto inertial_or_guess = [&](int body, const Pose& F, const std::string& what) {

@@ -4,7 +4,6 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
-
 #include <filesystem>
 
 #include "flashtwin/core/errors.hpp"
@@ -35,14 +34,16 @@ double unit_scale(Units u, double diagonal, const std::string& what) {
   return mm ? 1e-3 : 1.0;
 }
 
-double diagonal_of(const std::vector<Eigen::Vector3f>& points) {
+// Bounding-box diagonal of points (float or double).
+template <typename Points>
+double diagonal_of(const Points& points) {
   if (points.empty()) return 0;
-  Eigen::Vector3f lo = points.front(), hi = points.front();
+  Vec3 lo = points.front().template cast<double>(), hi = lo;
   for (const auto& p : points) {
-    lo = lo.cwiseMin(p);
-    hi = hi.cwiseMax(p);
+    lo = lo.cwiseMin(p.template cast<double>());
+    hi = hi.cwiseMax(p.template cast<double>());
   }
-  return static_cast<double>((hi - lo).norm());
+  return (hi - lo).norm();
 }
 
 PointCloud read_scan(const JobInputs& in) {
@@ -56,13 +57,17 @@ PointCloud read_scan(const JobInputs& in) {
 }
 
 TriangleMesh read_cad(const JobInputs& in) {
-  const TriangleMesh raw = load_mesh(in.cad);
-  std::vector<Eigen::Vector3f> v;
-  for (const auto& p : raw.vertices) v.push_back(p.cast<float>());
-  return load_mesh(in.cad, unit_scale(in.cad_units, diagonal_of(v), in.cad));
+  TriangleMesh cad = load_mesh(in.cad);
+  const double s = unit_scale(in.cad_units, diagonal_of(cad.vertices), in.cad);
+  for (auto& v : cad.vertices) v *= s;
+  return cad;
 }
 
-// The job's refusal: DIR/job.json says why; nothing else is left behind.
+// What a job writes that a real cell would run or rely on: removed before it starts, so that a
+// refusal never leaves an earlier job's programs standing beside its reason.
+constexpr const char* kJobResults[] = {"plan", "plans.json", "trajectory.csv", "job.json"};
+
+// The job's refusal: DIR/job.json says why; no program is written.
 JobResult refuse(JobResult r, const std::string& reason, const fs::path& dir) {
   r.refused = true;
   r.reason = reason;
@@ -154,11 +159,10 @@ sim::Fin fin_from_path(const perception::FlashPath& path, const std::vector<doub
 
 // The part the scan shows: the CAD body and one fin per detected path (regions unseen at their
 // edge get a 0.8 mm thickness, the middle of the 0.3-1.5 mm castings have).
-sim::Casting part_as_scanned(const TriangleMesh& cad, const Perception& perc,
+sim::Casting part_as_scanned(const TriangleMesh& cad, const MeshBvh& bvh, const Perception& perc,
                              const PointCloud& scan_M) {
   sim::Casting part;
   part.nominal = cad;
-  const MeshBvh bvh(cad);
   const auto& det = perc.detection;
   for (const auto& path : det.paths) {
     if (path.points_C.size() < 2) continue;
@@ -177,10 +181,11 @@ sim::Casting part_as_scanned(const TriangleMesh& cad, const Perception& perc,
 
 // Grinds the part as scanned with the plans in the twin: DIR/rehearsal/cell/ and the
 // rehearsal.* metrics (removal, execution, force, quality) into `m`.
-bool rehearse(const Scenario& sc, const CellSetup& cell, const Perception& perc,
-              const PointCloud& scan_M, const Plans& plans, const fs::path& dir, json& m) {
+bool rehearse(const Scenario& sc, const CellSetup& cell, const MeshBvh& cad_bvh,
+              const Perception& perc, const PointCloud& scan_M, const Plans& plans,
+              const fs::path& dir, json& m) {
   CellSetup setup;
-  setup.casting = part_as_scanned(cell.casting.nominal, perc, scan_M);
+  setup.casting = part_as_scanned(cell.casting.nominal, cad_bvh, perc, scan_M);
   setup.spec = cell.spec;
   setup.spec.X_WC = cell.spec.X_WM * perc.X_CM_est.inverse();
   ScenarioScan ss;
@@ -190,9 +195,6 @@ bool rehearse(const Scenario& sc, const CellSetup& cell, const Perception& perc,
   ex.run(ss, plans.paths);
   json r;
   ex.finish(r);
-  double flash = 0;
-  for (const auto& f : setup.casting.fins) flash += f.volume;
-  r["flash_volume_mm3"] = flash * 1e9;
   const auto failures = quality_failures(sc.quality, r);
   r["quality.pass"] = failures.empty();
   r["quality.failures"] = failures;
@@ -213,6 +215,7 @@ JobResult run_job(const JobInputs& in) {
   setup.casting.nominal = read_cad(in);
   const fs::path dir(in.out_dir);
   ensure_directory(dir.string());
+  for (const char* name : kJobResults) fs::remove_all(dir / name);
 
   JobResult r;
   json& m = r.summary;
@@ -224,8 +227,7 @@ JobResult run_job(const JobInputs& in) {
 
   Perception perc;
   const auto target = perception::ModelTarget::from_mesh_cached(setup.casting.nominal);
-  perception::RegistrationParams rp = cell_registration_params();
-  perc.registration = perception::register_scan(scan_M, *target, rp);
+  perc.registration = perception::register_scan(scan_M, *target, cell_registration_params());
   const auto& reg = perc.registration;
   perc.X_CM_est = reg.T_target_source;
   const Pose X_BC = setup.spec.X_WB.inverse() * setup.spec.X_WM * perc.X_CM_est.inverse();
@@ -238,8 +240,7 @@ JobResult run_job(const JobInputs& in) {
   if (!reg.confident) return refuse(std::move(r), "pose not confident: " + reg.message, dir);
 
   const MeshBvh cad_bvh(setup.casting.nominal);
-  perception::DetectionParams dp = sc.detection;
-  perc.detection = perception::detect_flash(scan_M, cad_bvh, perc.X_CM_est, dp);
+  perc.detection = perception::detect_flash(scan_M, cad_bvh, perc.X_CM_est, sc.detection);
   write_paths(dir.string(), perc.detection);
   m["paths.count"] = perc.detection.paths.size();
 
@@ -248,23 +249,19 @@ JobResult run_job(const JobInputs& in) {
   fs::remove_all(staging);
   RunOptions opt;
   opt.report = false;
-  json tm;
-  const Plans plans = plan_setup(sc, setup, perc, opt, staging, tm);
-  for (auto it = tm.begin(); it != tm.end(); ++it) m[it.key()] = it.value();
+  const Plans plans = plan_setup(sc, setup, perc, opt, staging, m);
   if (!plans.failed_paths.empty()) {
     fs::remove_all(staging);
     return refuse(std::move(r), "not every path is feasible: " + plans.first_failure, dir);
   }
-  if (!rehearse(sc, setup, perc, scan_M, plans, dir, m)) {
+  if (!rehearse(sc, setup, cad_bvh, perc, scan_M, plans, dir, m)) {
     fs::remove_all(staging);
     return refuse(std::move(r), "the rehearsal predicts a part outside its quality limits: " +
                                     m["rehearsal.quality.failures"].dump(),
                   dir);
   }
-  for (const char* name : {"plan", "plans.json", "trajectory.csv"}) {
-    fs::remove_all(dir / name);
+  for (const char* name : kJobResults)
     if (fs::exists(staging / name)) fs::rename(staging / name, dir / name);
-  }
   fs::remove_all(staging);
   m["refused"] = false;
   m["programs"] = sc.robot.controller.language;

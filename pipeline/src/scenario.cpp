@@ -1,4 +1,5 @@
 #include "flashtwin/pipeline/scenario.hpp"
+
 #include "flashtwin/pipeline/sweep.hpp"
 
 #include <cmath>
@@ -6,6 +7,7 @@
 #include "flashtwin/core/config.hpp"
 #include "flashtwin/core/errors.hpp"
 #include "flashtwin/core/random.hpp"
+#include "flashtwin/planner/ik.hpp"
 #include "flashtwin/sim/scan_cell.hpp"
 
 namespace flashtwin::pipeline {
@@ -249,9 +251,9 @@ unsigned branch_mask_of(const ConfigNode& list) {
     const std::string want = list[i].as_string();
     unsigned matched = 0;
     for (int b = 0; b < 8; ++b) {
-      const std::string name = std::string(b < 4 ? "front" : "back") + "/" +
-                               ((b & 2) ? "down" : "up") + "/" + ((b & 1) ? "flip" : "noflip");
-      if (name == want || name.rfind(want + "/", 0) == 0) matched |= 1u << b;
+      const planner::IkBranch branch{b < 4, (b & 2) == 0, (b & 1) != 0};  // index() == b
+      const std::string name = branch.name();
+      if (name == want || name.rfind(want + "/", 0) == 0) matched |= 1u << branch.index();
     }
     if (!matched)
       list[i].fail("expected a branch such as front, back, front/up or front/up/noflip, got '" +

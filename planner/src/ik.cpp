@@ -214,11 +214,11 @@ bool solve_offset_wrist(const RobotModel& robot, const Pose& X_BE, const IkParam
     const double th1 = front ? psi + M_PI - beta : psi + beta;
     const Pose X_B1 = dh_link(dh[0], th1);
     const Mat3 R16 = X_B1.linear().transpose() * R;
+    const Vec3 p15 = X_B1.inverse() * p5;
     bool singular = false;
     for (const WristAngles& w : wrist_angles(R16, params.wrist_tol, false, th6_ref, singular)) {
       const double th234 = w.a;
       // p4 in frame {1}: z4 = Rz(θ234)·(0, −1, 0) there.
-      const Vec3 p15 = X_B1.inverse() * p5;
       const Vec3 z14(std::sin(th234), -std::cos(th234), 0);
       const Vec3 p14 = p15 - d5 * z14;
       const double x = p14.x(), y = p14.y();

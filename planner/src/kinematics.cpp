@@ -3,8 +3,6 @@
 #include <algorithm>
 #include <cmath>
 
-#include "flashtwin/planner/ik.hpp"
-
 namespace flashtwin::planner {
 
 Pose dh_link(const DhRow& row, double theta) {

@@ -23,8 +23,6 @@ namespace {
 constexpr double kPedestalHalfWidth = 0.2;   // [m] square pedestal from the floor up
 constexpr double kBaseHousingRadius = 0.11;  // [m] cylinder about z_B from base_height below {B}
 constexpr double kBaseHousingTop = 0.09;     // [m] ... up to this far below {B}
-// Radii of the capsules drawn along each link's D-H offsets [m] (links 1..6).
-constexpr double kLinkRadii[kNumJoints] = {0.08, 0.07, 0.06, 0.05, 0.045, 0.04};
 constexpr double kSpindleRadius = 0.035;      // [m] the spindle body's cylinder
 const Vec3 kScannerHeadCentre_M(0.0, 0.0, -0.04);  // [m] box centre in {M}
 const Vec3 kScannerHeadHalfSize(0.06, 0.09, 0.035);
@@ -251,7 +249,6 @@ std::vector<std::string> save_mujoco_mesh(const std::string& dir, const std::str
 
 std::string arm_mjcf(const RobotModel& robot, const Pose& X_WB, const CellSpec& spec) {
   std::ostringstream os;
-  const double* radii = kLinkRadii;
   os << "    <body name=\"base\" " << pose_attrs(X_WB) << ">\n"
      << "      " << inertial_xml(robot.base, Pose::Identity()) << "\n";
   // The housing below {B} (an arm whose {B} is at its shoulder, as the FT6's); an arm whose {B}
@@ -272,7 +269,7 @@ std::string arm_mjcf(const RobotModel& robot, const Pose& X_WB, const CellSpec& 
        << num(robot.servo_kp[i] > 0 ? robot.servo_damping[i] : spec.damping[i])
        << "\" armature=\"0.05\"/>\n"
        << indent << "  " << inertial_xml(robot.links[i], dh_constant(robot.dh[i])) << "\n"
-       << indent << "  " << link_geoms(robot.dh[i], radii[i], i % 2 ? "robot" : "robot_dark")
+       << indent << "  " << link_geoms(robot.dh[i], kLinkDrawRadii[i], i % 2 ? "robot" : "robot_dark")
        << "\n";
     indent += "  ";
   }
@@ -761,8 +758,8 @@ void check_arm_clear_of_scanner(const RobotModel& robot, const CellSpec& spec) {
     X = X * Pose(Eigen::AngleAxisd(robot.home[i], Vec3::UnitZ()));
     const Vec3 o = X.translation(), z_end = X * Vec3(0, 0, robot.dh[i].d);
     const Vec3 a_end = X * Vec3(robot.dh[i].a, 0, robot.dh[i].d);
-    segment(o, z_end, kLinkRadii[i], "link " + std::to_string(i + 1));
-    segment(z_end, a_end, kLinkRadii[i], "link " + std::to_string(i + 1));
+    segment(o, z_end, kLinkDrawRadii[i], "link " + std::to_string(i + 1));
+    segment(z_end, a_end, kLinkDrawRadii[i], "link " + std::to_string(i + 1));
     X = X * dh_constant(robot.dh[i]);
   }
   segment(X.translation(), X * robot.tool.X_ET.translation(), kSpindleRadius, "the spindle");

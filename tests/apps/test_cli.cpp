@@ -181,14 +181,18 @@ TEST(Cli, JobFromAPlainScanAndCadPlansThePartWhereItIs) {
   const flashtwin::Pose X_BC_mm = pose_of(nlohmann::json::parse(jm.out)["X_BC"]);
   EXPECT_LT((X_BC_mm.translation() - X_BC_true.translation()).norm(), 1e-4);
 
-  // Another part's CAD (the cover family's): refused, exit 1, no program.
+  // Another part's CAD (the cover family's), into the folder of the job above: refused, exit 1,
+  // and the earlier job's programs are gone (no program stands beside a refusal).
+  ASSERT_TRUE(std::filesystem::exists(d + "/job/plan"));
   ASSERT_EQ(run("-q cell " + ftest::source_path("scenarios/cover.yaml") + " -o " + d + "/cover").code, 0);
   const CliRun jr = run("-q job --scan " + d + "/scan/scan.ply --cad " + d +
-                        "/cover/casting_cad.stl --cell " + cell + " -o " + d + "/job_wrong");
+                        "/cover/casting_cad.stl --cell " + cell + " -o " + d + "/job");
   EXPECT_EQ(jr.code, 1) << jr.out << jr.err;
   EXPECT_NE(jr.out.find("job refused"), std::string::npos) << jr.out;
-  EXPECT_FALSE(std::filesystem::exists(d + "/job_wrong/plan"));
-  EXPECT_TRUE(std::filesystem::exists(d + "/job_wrong/job.json"));
+  EXPECT_FALSE(std::filesystem::exists(d + "/job/plan"));
+  EXPECT_FALSE(std::filesystem::exists(d + "/job/plans.json"));
+  std::ifstream rf(d + "/job/job.json");
+  EXPECT_TRUE(nlohmann::json::parse(rf)["refused"].get<bool>());
 }
 
 TEST(Cli, UnreachablePoseExitsOneWithReason) {

@@ -79,10 +79,12 @@ TEST_P(RobotLibrary, LoadsWithLimitsHomeAndAnIkSolver) {
   // The spindle points down at home (the parking pose every shipped arm is given).
   const Pose X_BT = fk_tool(robot, robot.home);
   EXPECT_LT(X_BT.linear().col(2).z(), -0.9) << robot.name;
-  // The controller mapping round-trips through the program export's convention.
+  // The program export writes in the controller's convention and language.
   const ProgramParams P = program_params_for(robot);
-  const Vector6 axes = P.joint_sign.cwiseProduct(robot.home) + P.joint_offset;
-  EXPECT_LT(((axes - P.joint_offset).cwiseQuotient(P.joint_sign) - robot.home).norm(), 1e-12);
+  EXPECT_EQ(P.joint_sign, robot.controller.sign);
+  EXPECT_EQ(P.joint_offset, robot.controller.offset);
+  if (robot.controller.language != "none")
+    EXPECT_EQ(to_string(P.dialect), robot.controller.language) << robot.name;
 }
 
 TEST_P(RobotLibrary, FkEqualsTheUrdfJointProductReadByUrdfdom) {
@@ -148,7 +150,7 @@ TEST_P(RobotLibrary, ItsUrdfReadBackGivesTheSameArm) {
     const Vector6 q = random_q(robot, rng);
     // The URDF's joint values are the written arm's θ; the read arm maps them by its controller
     // convention (θ = (A − offset) / sign).
-    const Vector6 th = (q - back.controller.offset).cwiseQuotient(back.controller.sign);
+    const Vector6 th = back.controller.joints(q);
     ASSERT_TRUE(back.within_limits(th, 1e-9)) << n;
     const Pose a = fk_tool(robot, q), b = fk_tool(back, th);
     worst_p = std::max(worst_p, (a.translation() - b.translation()).norm());
@@ -272,7 +274,7 @@ TEST(UrdfIn, ASphericalWristChainIsReadAndRoundTrips) {
     Vector6 qu;
     for (int i = 0; i < 6; ++i) qu[i] = rng.uniform(-3, 3);
     // The URDF's joint values are the controller's axis values.
-    const Vector6 th = (qu - r.controller.offset).cwiseQuotient(r.controller.sign);
+    const Vector6 th = r.controller.joints(qu);
     ASSERT_TRUE(r.within_limits(th, 1e-9));
     // The last link l6 is the flange; the tool sits 0.22 m along its z.
     const Pose X = urdf_chain_pose(*model, "l6", qu) * Eigen::Translation3d(0, 0, 0.22);
@@ -326,8 +328,8 @@ TEST(UrdfIn, TheRosIndustrialStyleKr16IsTheSameArmAsTheLibrarysForEveryAxisValue
       const double hi = yaml.controller.sign[i] * yaml.limits[i].upper + yaml.controller.offset[i];
       A[i] = rng.uniform(std::min(lo, hi), std::max(lo, hi));
     }
-    const Vector6 th_y = (A - yaml.controller.offset).cwiseQuotient(yaml.controller.sign);
-    const Vector6 th_u = (A - urdf_arm.controller.offset).cwiseQuotient(urdf_arm.controller.sign);
+    const Vector6 th_y = yaml.controller.joints(A);
+    const Vector6 th_u = urdf_arm.controller.joints(A);
     ASSERT_TRUE(urdf_arm.within_limits(th_u, 1e-9)) << n;
     const Pose a = fk_flange(yaml, th_y) * yaml.tool.X_ET;
     const Pose b = fk_flange(urdf_arm, th_u) * urdf_arm.tool.X_ET;
@@ -367,7 +369,7 @@ TEST(UrdfIn, TheRosStyleUr10eIsTheSameArmAsTheLibrarysForEveryJointValue) {
   for (int n = 0; n < 2000; ++n) {
     Vector6 q;  // controller joint values within the URDF's limits (elbow ±π)
     for (int i = 0; i < 6; ++i) q[i] = rng.uniform(i == 2 ? -M_PI : -2 * M_PI, i == 2 ? M_PI : 2 * M_PI);
-    const Vector6 th = (q - arm.controller.offset).cwiseQuotient(arm.controller.sign);
+    const Vector6 th = arm.controller.joints(q);
     ASSERT_TRUE(arm.within_limits(th, 1e-9)) << n;
     const Pose a = X_baselink_base * fk_tool(yaml, q), b = fk_tool(arm, th);
     worst_p = std::max(worst_p, (a.translation() - b.translation()).norm());

@@ -45,15 +45,25 @@ struct ToolDescription {
   double length = 0.02;          ///< cutting length along the tool axis [m]
 };
 
-/// How the robot's own controller counts its axes (what a KRL PTP, RAPID MoveAbsJ or URScript
-/// movej takes): A_i = sign_i·θ_i + offset_i, with the vendor's zero position and directions.
-struct ControllerAxes {
+/// The robot's own controller: how it counts its axes (what a KRL PTP, RAPID MoveAbsJ or
+/// URScript movej takes): A_i = sign_i·θ_i + offset_i, with the vendor's zero position and
+/// directions; and the language its programs are written in.
+struct Controller {
   Vector6 sign = Vector6::Ones();     ///< ±1
   Vector6 offset = Vector6::Zero();   ///< [rad]
-  /// The controller's program language: "krl" (KUKA), "rapid" (ABB), "urscript" (Universal
-  /// Robots) or "none" (no exporter for it: the trajectory CSV carries the motion).
+  /// "krl" (KUKA), "rapid" (ABB), "urscript" (Universal Robots) or "none" (no exporter for it:
+  /// the trajectory CSV carries the motion).
   std::string language = "krl";
+
+  /// The controller's axis values of D-H angles q.
+  Vector6 axes(const Vector6& q) const { return sign.cwiseProduct(q) + offset; }
+  /// The D-H angles of the controller's axis values a.
+  Vector6 joints(const Vector6& a) const { return (a - offset).cwiseQuotient(sign); }
 };
+
+/// Radii [m] of the cylinders drawn along each link's D-H offsets (links 1..6), in the URDF's
+/// visuals and the cell's MJCF.
+constexpr std::array<double, kNumJoints> kLinkDrawRadii{0.08, 0.07, 0.06, 0.05, 0.045, 0.04};
 
 /// Immutable robot description (Model apart from Data: no state in here).
 struct RobotModel {
@@ -66,7 +76,7 @@ struct RobotModel {
   Inertial base;  ///< the fixed base link, in frame {0}={B}
   ToolDescription tool;
   Vector6 home = Vector6::Zero();  ///< parking configuration [rad] (MJCF keyframe `home`)
-  ControllerAxes controller;       ///< the controller's axis values (YAML `controller:`)
+  Controller controller;           ///< its controller's axis convention and language (YAML `controller:`)
   /// The twin's position servos for this arm (YAML `servo: {kp, damping}`): stiffness
   /// [N·m/rad] and joint damping [N·m·s/rad] per joint; unset (0): the cell's defaults, tuned
   /// for the FT6. A model of the drives, not a vendor figure.

@@ -34,7 +34,6 @@ enum class IkStatus {
   kUnsupportedGeometry,    ///< the D-H table is of neither type the solvers handle
 };
 
-
 /// Options of the IK solver.
 struct IkParams {
   /// Drop solutions outside the joint position limits (true) or return them all (false).
