@@ -21,17 +21,6 @@ using json = nlohmann::ordered_json;
 
 namespace {
 
-// The planner's trajectory as the executor takes it: planned TCP in {W}.
-sim::JointTrajectory to_sim(const planner::GrindResult& g, const Pose& X_WB) {
-  sim::JointTrajectory tr;
-  tr.t = g.trajectory.t;
-  tr.q = g.trajectory.q;
-  tr.dq = g.trajectory.dq;
-  tr.planned_tcp_W.reserve(g.tcp_B.size());
-  for (const auto& X_BT : g.tcp_B) tr.planned_tcp_W.push_back(X_WB * X_BT);
-  return tr;
-}
-
 // Binary little-endian PLY of points with one float scalar and an optional uchar flag.
 std::string scalar_ply(const std::vector<Vec3>& pts, const std::vector<float>& value,
                        const char* value_name, const std::vector<std::uint8_t>& flag,
@@ -97,6 +86,18 @@ void write_material_maps(const std::string& dir, const sim::MaterialGrid& grid) 
                   scalar_ply(gouge, depth, "depth_mm", {}, nullptr));
 }
 
+Motion motion_of(const PlannedPath& plan) {
+  const planner::GrindResult& g = plan.second;
+  Motion m;
+  m.path = plan.first;
+  m.trajectory.t = g.trajectory.t;
+  m.trajectory.q = g.trajectory.q;
+  m.trajectory.dq = g.trajectory.dq;
+  m.tcp_B = g.tcp_B;
+  m.tool_radius = g.tool_radius;
+  return m;
+}
+
 Execution::Execution(const Scenario& sc, const sim::Casting& casting)
     : sc_(sc),
       grid_(std::make_shared<sim::MaterialGrid>(sim::make_material_grid(casting, sc.execution.material))) {
@@ -106,6 +107,14 @@ Execution::Execution(const Scenario& sc, const sim::Casting& casting)
 
 void Execution::run(const ScenarioScan& ss, const std::vector<PlannedPath>& plans,
                     const FrameHook& frame_hook, std::size_t path_offset) {
+  std::vector<Motion> motions;
+  motions.reserve(plans.size());
+  for (const auto& p : plans) motions.push_back(motion_of(p));
+  run_motions(ss, motions, frame_hook, path_offset);
+}
+
+void Execution::run_motions(const ScenarioScan& ss, const std::vector<Motion>& motions,
+                            const FrameHook& frame_hook, std::size_t path_offset) {
   if (summary_.failed) return;
   const sim::MjModelPtr model = sim::load_mjcf_file(ss.files.mjcf);
   const sim::ToolParams tool = sim::tool_params_from(sc_.robot.tool);
@@ -114,9 +123,12 @@ void Execution::run(const ScenarioScan& ss, const std::vector<PlannedPath>& plan
   sim::MaterialGrid& grid = *grid_;
   const int setup_index = static_cast<int>(summary_.X_CB.size());
   summary_.X_CB.push_back(ss.setup.spec.X_WC.inverse() * ss.setup.spec.X_WB);
-  for (const auto& [k_setup, g] : plans) {
-    const std::size_t k = k_setup + path_offset;
-    const sim::JointTrajectory tr = to_sim(g, ss.setup.spec.X_WB);
+  for (const Motion& motion : motions) {
+    const std::size_t k = motion.path + path_offset;
+    // The executor's trajectory: the tool poses it should pass in the cell's world {W}.
+    sim::JointTrajectory tr = motion.trajectory;
+    tr.planned_tcp_W.clear();
+    for (const Pose& X_BT : motion.tcp_B) tr.planned_tcp_W.push_back(ss.setup.spec.X_WB * X_BT);
     const double t0 = sim_time_;
     if (frame_hook) {
       ep.on_step = [&, t0, k](const mjModel* mm, mjData* d, double t) {
@@ -125,7 +137,7 @@ void Execution::run(const ScenarioScan& ss, const std::vector<PlannedPath>& plan
     }
     // The burr this path was planned for (a rack burr after a tool change; same length).
     sim::ToolParams path_tool = tool;
-    if (g.tool_radius > 0) path_tool.radius = g.tool_radius;
+    if (motion.tool_radius > 0) path_tool.radius = motion.tool_radius;
     path_tool.radius += sc_.faults.tool_radius_error;  // a drill: not the burr planned for
     const sim::ExecutionResult r =
         sim::execute_trajectory(*model, tr, &grid, path_tool, sc_.execution.force, ep);

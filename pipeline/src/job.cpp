@@ -13,6 +13,7 @@
 #include "flashtwin/pipeline/pose_json.hpp"
 #include "flashtwin/pipeline/execution.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
+#include "flashtwin/planner/program_replay.hpp"
 #include "flashtwin/sim/cell.hpp"
 #include "stages.hpp"
 
@@ -179,11 +180,26 @@ sim::Casting part_as_scanned(const TriangleMesh& cad, const MeshBvh& bvh, const 
   return part;
 }
 
-// Grinds the part as scanned with the plans in the twin: DIR/rehearsal/cell/ and the
-// rehearsal.* metrics (removal, execution, force, quality) into `m`.
-bool rehearse(const Scenario& sc, const CellSetup& cell, const MeshBvh& cad_bvh,
-              const Perception& perc, const PointCloud& scan_M, const Plans& plans,
-              const fs::path& dir, json& m) {
+// Grinds the part as scanned in the twin with the written programs as the controller runs them
+// (the plans themselves for a robot without a program language): DIR/rehearsal/cell/ and the
+// rehearsal.* metrics (removal, execution, force, quality) into `m`. Returns the reason the
+// job must refuse, "" when the rehearsed part is within its limits.
+std::string rehearse(const Scenario& sc, const CellSetup& cell, const MeshBvh& cad_bvh,
+                     const Perception& perc, const PointCloud& scan_M, const Plans& plans,
+                     const fs::path& staging, const fs::path& dir, json& m) {
+  std::vector<Motion> motions;
+  if (sc.robot.controller.language == "none") {
+    for (const auto& p : plans.paths) motions.push_back(motion_of(p));
+    m["rehearsal.motion"] = "plan";
+  } else {
+    ProgramMotions pm = program_motions(sc.robot, staging.string());
+    m["rehearsal.motion"] = "program";
+    m["rehearsal.programs"] = pm.programs;
+    m["rehearsal.program_time_s"] = pm.time_s;
+    m["rehearsal.program_max_joint_velocity_ratio"] = pm.max_joint_velocity_ratio;
+    if (!pm.ok()) return "a program would not run: " + pm.failure;
+    motions = std::move(pm.motions);
+  }
   CellSetup setup;
   setup.casting = part_as_scanned(cell.casting.nominal, cad_bvh, perc, scan_M);
   setup.spec = cell.spec;
@@ -192,17 +208,68 @@ bool rehearse(const Scenario& sc, const CellSetup& cell, const MeshBvh& cad_bvh,
   ss.setup = setup;
   ss.files = sim::write_cell(sc.robot, setup.spec, setup.casting, (dir / "rehearsal" / "cell").string());
   Execution ex(sc, ss.setup.casting);
-  ex.run(ss, plans.paths);
+  ex.run_motions(ss, motions);
   json r;
   ex.finish(r);
   const auto failures = quality_failures(sc.quality, r);
   r["quality.pass"] = failures.empty();
   r["quality.failures"] = failures;
   for (auto it = r.begin(); it != r.end(); ++it) m["rehearsal." + it.key()] = it.value();
-  return failures.empty();
+  return failures.empty() ? ""
+                          : "the rehearsal predicts a part outside its quality limits: " +
+                                json(failures).dump();
 }
 
 }  // namespace
+
+ProgramMotions program_motions(const RobotModel& robot, const std::string& dir) {
+  const std::string plans_file = (fs::path(dir) / "plans.json").string();
+  json plans;
+  try {
+    plans = json::parse(read_text_file(plans_file));
+  } catch (const json::exception& e) {
+    throw InputError(plans_file + ": expected the JSON a job writes, got " + e.what());
+  }
+  const planner::ProgramParams pp = planner::program_params_for(robot);
+  ProgramMotions out;
+  for (const auto& path : plans) {
+    if (!path.is_object() || !path.contains("motions")) continue;  // not planned
+    const std::size_t k = path.value("path", std::size_t{0});
+    for (const auto& mo : path["motions"]) {
+      const std::string rel = mo.value("program", std::string());
+      if (rel.empty())
+        throw InputError(plans_file + ": path " + std::to_string(k) +
+                         ": expected a program for each motion, got none");
+      const std::string file = (fs::path(dir) / rel).string();
+      planner::ParsedProgram parsed;
+      try {
+        parsed = planner::parse_program(read_text_file(file), pp);
+      } catch (const ArgumentError& e) {
+        throw InputError(file + ": " + e.what());
+      }
+      ++out.programs;
+      Motion motion;
+      motion.path = k;
+      motion.tool_radius = mo.value("tool_radius_mm", 0.0) * 1e-3;
+      try {
+        planner::ReplayedProgram rp = planner::replay_program(robot, parsed);
+        motion.trajectory.t = rp.trajectory.t;
+        motion.trajectory.q = rp.trajectory.q;
+        motion.trajectory.dq = rp.trajectory.dq;
+        motion.tcp_B = std::move(rp.X_BT);
+        out.time_s += rp.trajectory.duration();
+        spdlog::debug("{}: {} targets, {:.3f} s as the controller runs it, path {:.1f} mm",
+                      rel, parsed.points.size(), rp.trajectory.duration(), rp.path_length * 1e3);
+        out.max_joint_velocity_ratio = std::max(out.max_joint_velocity_ratio, rp.max_joint_velocity_ratio);
+      } catch (const ArgumentError& e) {
+        if (out.failure.empty()) out.failure = rel + ": " + e.what();
+        continue;
+      }
+      out.motions.push_back(std::move(motion));
+    }
+  }
+  return out;
+}
 
 JobResult run_job(const JobInputs& in) {
   if (in.out_dir.empty()) throw ArgumentError("job: expected an output folder");
@@ -254,11 +321,10 @@ JobResult run_job(const JobInputs& in) {
     fs::remove_all(staging);
     return refuse(std::move(r), "not every path is feasible: " + plans.first_failure, dir);
   }
-  if (!rehearse(sc, setup, cad_bvh, perc, scan_M, plans, dir, m)) {
+  const std::string rehearsal = rehearse(sc, setup, cad_bvh, perc, scan_M, plans, staging, dir, m);
+  if (!rehearsal.empty()) {
     fs::remove_all(staging);
-    return refuse(std::move(r), "the rehearsal predicts a part outside its quality limits: " +
-                                    m["rehearsal.quality.failures"].dump(),
-                  dir);
+    return refuse(std::move(r), rehearsal, dir);
   }
   for (const char* name : kJobResults)
     if (fs::exists(staging / name)) fs::rename(staging / name, dir / name);

@@ -501,23 +501,25 @@ std::vector<planner::GrindResult> plan_path(const Scenario& sc, const Pose& X_BC
 }
 
 // The plan's files for one grinding motion: DIR/plan/NAME (trajectory, plots with the report,
-// the KRL program).
-void write_plan_files(const Scenario& sc, const planner::GrindResult& g, const fs::path& dir,
-                      const std::string& name, bool report) {
+// the program in the robot's controller language). Returns the program's path relative to DIR,
+// "" when none was written.
+std::string write_plan_files(const Scenario& sc, const planner::GrindResult& g,
+                             const fs::path& dir, const std::string& name, bool report) {
   const std::string pd = (dir / "plan" / name).string();
   // The joint plots belong to the report (--no-report skips them).
   const std::string csv = planner::trajectory_csv(g);
   planner::write_grind_outputs(g, pd, report, csv);
   // The robot program the arm's own controller would run (its language and axis convention,
   // frames declared in it); none for a controller without an exporter.
-  if (sc.robot.controller.language == "none") return;
+  if (sc.robot.controller.language == "none") return "";
   planner::ProgramParams pp = planner::program_params_for(sc.robot);
   pp.name = "flashtwin_" + name;
   try {
-    planner::export_program_file(sc.robot, g.trajectory, pp, pd);
+    return fs::relative(planner::export_program_file(sc.robot, g.trajectory, pp, pd), dir).string();
   } catch (const ArgumentError& e) {
     spdlog::warn("{}: no {} program: {}", name, sc.robot.controller.language, e.what());
   }
+  return "";
 }
 
 }  // namespace
@@ -563,7 +565,11 @@ Plans plan_setup(const Scenario& sc, const CellSetup& setup, const Perception& p
         if (dir.empty()) continue;
         // path_K, then path_K_2, path_K_3 for the further pieces of a path ground in pieces.
         const std::string name = "path_" + std::to_string(k) + (piece ? "_" + std::to_string(piece + 1) : "");
-        write_plan_files(sc, gk, dir, name, opt.report);
+        const std::string program = write_plan_files(sc, gk, dir, name, opt.report);
+        // What the cell runs for this motion: the program and the burr it was planned for.
+        json pr = {{"program", program},
+                   {"tool_radius_mm", (gk.tool_radius > 0 ? gk.tool_radius : sc.robot.tool.radius) * 1e3}};
+        pj["motions"].push_back(pr);
         if (planned == 1 && piece == 0) write_text_file((dir / "trajectory.csv").string(), planner::trajectory_csv(gk));
       }
     } else if (g.status == planner::GrindStatus::kToolTooLarge) {

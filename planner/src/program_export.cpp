@@ -102,6 +102,12 @@ double parse_number(const std::string& text, int line, const std::string& what) 
   return v;
 }
 
+// URScript movel/movep state no orientation speed: the controller turns the tool at up to this
+// many rad/s per m/s of the programmed tool speed (and rad/s² per m/s² of the acceleration) and
+// takes whichever of the translation and the rotation needs longer (Universal Robots forum,
+// "MoveL: Tool Angular Speed", 2021 — a user's measurement, not a manual's statement).
+constexpr double kUrOriPerSpeed = 4.0;
+
 // Splits at top-level commas (not inside brackets or parentheses).
 std::vector<std::string> split_top(const std::string& s) {
   std::vector<std::string> parts;
@@ -144,16 +150,49 @@ Vector6 from_axes(const Vector6& axes, const ProgramParams& P) {
 
 // ---- Decimation and per-point speeds.
 
-std::vector<std::size_t> decimate(const JointTrajectory& tr, const ProgramParams& P) {
+// Largest deviation of the TCP samples strictly between a and b from the straight move a→b the
+// controller makes of them: position from the chord, orientation from the slerp at the sample's
+// fraction along it (scaled to metres by `ori_scale` [m/rad]) [m].
+double chord_deviation(const std::vector<Pose>& X, const std::vector<Eigen::Quaterniond>& r,
+                       std::size_t a, std::size_t b, double ori_scale) {
+  const Vec3 pa = X[a].translation(), d = X[b].translation() - pa;
+  const double len2 = d.squaredNorm();
+  double worst = 0;
+  for (std::size_t n = a + 1; n < b; ++n) {
+    const Vec3 q = X[n].translation() - pa;
+    const double u = len2 > 0 ? std::clamp(q.dot(d) / len2, 0.0, 1.0) : 0.0;
+    worst = std::max(worst, (q - u * d).norm());
+    if (ori_scale > 0) worst = std::max(worst, ori_scale * r[a].slerp(u, r[b]).angularDistance(r[n]));
+  }
+  return worst;
+}
+
+// The exported samples: every point_spacing of path length (or every time_step), and, for the
+// Cartesian motions, wherever the straight moves between exported points would leave the
+// planned TCP path by more than chord_tolerance (CAM's chordal deviation: a small hole ring's
+// TCP circle needs targets much closer than the spacing).
+std::vector<std::size_t> decimate(const JointTrajectory& tr, const std::vector<Pose>& X_WT,
+                                  const ProgramParams& P) {
   std::vector<std::size_t> idx{0};
   const std::size_t K = tr.size();
-  if (P.time_step > 0) {
-    const std::size_t step =
-        std::max<std::size_t>(1, static_cast<std::size_t>(std::llround(P.time_step / tr.dt)));
-    for (std::size_t n = step; n < K - 1; n += step) idx.push_back(n);
-  } else {
-    for (std::size_t n = 1; n + 1 < K; ++n)
-      if (tr.s[n] - tr.s[idx.back()] >= P.point_spacing * (1 - 1e-9)) idx.push_back(n);
+  const bool cartesian = P.motion == ProgramMotion::kLinear || P.motion == ProgramMotion::kSpline;
+  const bool chordal = cartesian && P.chord_tolerance > 0;
+  std::vector<Eigen::Quaterniond> r;
+  if (chordal)
+    for (const Pose& X : X_WT) r.emplace_back(X.linear());
+  const double ori_scale = P.chord_tolerance / P.angle_tolerance;
+  const std::size_t step = P.time_step > 0 ? std::max<std::size_t>(
+                                                 1, static_cast<std::size_t>(std::llround(P.time_step / tr.dt)))
+                                           : 0;
+  for (std::size_t n = 1; n + 1 < K; ++n) {
+    const std::size_t a = idx.back();
+    const bool due = step ? n - a >= step : tr.s[n] - tr.s[a] >= P.point_spacing * (1 - 1e-9);
+    if (chordal && n - a > 1 && chord_deviation(X_WT, r, a, n, ori_scale) > P.chord_tolerance) {
+      idx.push_back(n - 1);  // the longest move from a that still follows the path
+      --n;
+      continue;
+    }
+    if (due) idx.push_back(n);
   }
   if (K > 1) idx.push_back(K - 1);
   return idx;
@@ -260,18 +299,18 @@ std::string rapid_jointtarget(const Vector6& axes_deg) {
 // speeddata [v_tcp mm/s, v_ori deg/s, v_leax, v_reax]; zonedata [finep, pzone_tcp, pzone_ori,
 // pzone_eax, zone_ori, zone_leax, zone_reax] (mm, deg).
 std::string rapid_speed(double v_tcp, double v_ori) {
-  return "[" + fixed(v_tcp * 1000.0, 3) + ", " + fixed(v_ori * kRad2Deg, 3) + ", 5000, 1000]";
+  return "[" + fixed(v_tcp * 1000.0, 4) + ", " + fixed(v_ori * kRad2Deg, 4) + ", 5000, 1000]";
 }
 std::string rapid_zone(double radius) {
   const std::string r = mm(radius);
   return "[FALSE, " + r + ", " + r + ", " + r + ", 0.1, " + r + ", 0.1]";
 }
 
-template <typename SegmentSpeed>
+template <typename SegmentSpeed, typename SegmentOriSpeed>
 void write_rapid(std::ostringstream& o, const RobotModel& robot, const JointTrajectory& tr,
                  const ProgramParams& P, const Pose& X_ET, const std::vector<Pose>& X_WT,
                  const std::vector<std::size_t>& idx, const SegmentSpeed& segment_speed,
-                 double max_ori_speed) {
+                 const SegmentOriSpeed& segment_ori_speed) {
   const std::size_t npts = idx.size();
   const auto axes_deg = [&](const Vector6& q) { return Vector6(to_axes(q, P) * kRad2Deg); };
   const Inertial& tool = robot.tool.inertial;
@@ -290,18 +329,17 @@ void write_rapid(std::ostringstream& o, const RobotModel& robot, const JointTraj
     << ", [[0, 0, 0], [1, 0, 0, 0]]];\n";
   o << "  PROC main()\n";
   o << "    MoveAbsJ " << rapid_jointtarget(axes_deg(tr.q[idx[0]])) << ", v100, fine, tFlashtwin;\n";
-  const double v_ori = std::max(1.2 * max_ori_speed, 10.0 / kRad2Deg);
   for (std::size_t i = 1; i < npts; ++i) {
     const std::string zone = i + 1 == npts ? "fine" : rapid_zone(P.blend_radius);
     const Vector6 a = axes_deg(tr.q[idx[i]]);
     if (P.motion == ProgramMotion::kJoint) {
-      o << "    MoveAbsJ " << rapid_jointtarget(a) << ", " << rapid_speed(segment_speed(i), v_ori)
+      o << "    MoveAbsJ " << rapid_jointtarget(a) << ", " << rapid_speed(segment_speed(i), segment_ori_speed(i))
         << ", " << zone << ", tFlashtwin \\WObj:=wFlashtwin;\n";
     } else {
       const std::string pq = rapid_pos_quat(X_WT[idx[i]]);
       o << "    MoveL [" << pq.substr(1, pq.size() - 2) << ", "
         << rapid_confdata(robot, tr.q[idx[i]], a) << ", [9E9, 9E9, 9E9, 9E9, 9E9, 9E9]], "
-        << rapid_speed(segment_speed(i), v_ori) << ", " << zone
+        << rapid_speed(segment_speed(i), segment_ori_speed(i)) << ", " << zone
         << ", tFlashtwin \\WObj:=wFlashtwin;\n";
     }
   }
@@ -335,6 +373,10 @@ RobotProgram export_program(const RobotModel& robot, const JointTrajectory& tr,
                         num(P.point_spacing));
   if (!(P.time_step >= 0))
     throw ArgumentError("time_step: expected >= 0 [s], got " + num(P.time_step));
+  if (!(P.chord_tolerance >= 0))
+    throw ArgumentError("chord_tolerance: expected >= 0 [m], got " + num(P.chord_tolerance));
+  if (!(P.angle_tolerance > 0))
+    throw ArgumentError("angle_tolerance: expected > 0 [rad], got " + num(P.angle_tolerance));
   if (!(P.blend_radius >= 0))
     throw ArgumentError("blend_radius: expected >= 0 [m], got " + num(P.blend_radius));
   if (!(P.min_speed > 0))
@@ -366,30 +408,38 @@ RobotProgram export_program(const RobotModel& robot, const JointTrajectory& tr,
   RobotProgram prog;
   prog.dialect = P.dialect;
   prog.name = P.name;
-  prog.samples = decimate(tr, P);
-  const auto& idx = prog.samples;
-
-  // TCP poses in {W}, and the speeds the decimated segments need: the fastest TCP (or joint)
-  // motion between consecutive exported points.
+  // TCP poses in {W}, the exported samples, and the speeds the decimated segments need.
   std::vector<Pose> X_WT(K);
   for (std::size_t n = 0; n < K; ++n) X_WT[n] = X_WB * fk_flange(robot, tr.q[n]) * X_ET;
-  std::vector<double> tcp_speed(K, 0.0), ori_speed(K, 0.0);
+  prog.samples = decimate(tr, X_WT, P);
+  const auto& idx = prog.samples;
+  std::vector<double> ori_speed(K, 0.0);
   for (std::size_t n = 1; n < K; ++n) {
-    tcp_speed[n] = (X_WT[n].translation() - X_WT[n - 1].translation()).norm() / tr.dt;
     ori_speed[n] = rotation_distance(X_WT[n].linear(), X_WT[n - 1].linear()) / tr.dt;
   }
-  double max_path_accel = 0, max_ori_speed = 0;
+  double max_path_accel = 0, max_ori_speed = 0, max_ori_accel = 0;
   Vector6 max_dq = Vector6::Zero(), max_ddq = Vector6::Zero();
   for (std::size_t n = 0; n < K; ++n) {
     if (!tr.sddot.empty()) max_path_accel = std::max(max_path_accel, std::abs(tr.sddot[n]));
     max_ori_speed = std::max(max_ori_speed, ori_speed[n]);
+    if (n > 1) max_ori_accel = std::max(max_ori_accel, std::abs(ori_speed[n] - ori_speed[n - 1]) / tr.dt);
     max_dq = max_dq.cwiseMax(tr.dq[n].cwiseAbs());
     max_ddq = max_ddq.cwiseMax(tr.ddq[n].cwiseAbs());
   }
-  const auto segment_speed = [&](std::size_t i) {  // into exported point i >= 1
-    double v = 0;
-    for (std::size_t n = idx[i - 1] + 1; n <= idx[i]; ++n) v = std::max(v, tcp_speed[n]);
-    return std::max(v, P.min_speed);
+  // Into exported point i >= 1: the chord between the targets at the plan's pace (its length
+  // over the time the plan takes between them), so that the controller, moving the chord at the
+  // programmed speed, takes the plan's time over it. (The fastest sample of the segment instead
+  // would run a plan whose speed varies within a segment faster than planned: a hole ring's
+  // program took half its plan's time.)
+  const auto segment_speed = [&](std::size_t i) {
+    const double chord = (X_WT[idx[i]].translation() - X_WT[idx[i - 1]].translation()).norm();
+    return std::max(chord / (tr.t[idx[i]] - tr.t[idx[i - 1]]), P.min_speed);
+  };
+  // ... and the tool's turn between them at the plan's pace: where the turn governs (a burr
+  // tilting on a small radius), the controller takes the plan's time too.
+  const auto segment_ori_speed = [&](std::size_t i) {
+    const double angle = rotation_distance(X_WT[idx[i - 1]].linear(), X_WT[idx[i]].linear());
+    return std::max(angle / (tr.t[idx[i]] - tr.t[idx[i - 1]]), 1e-4);
   };
   const auto segment_joint_speed = [&](std::size_t i) {
     double v = 0;
@@ -430,7 +480,8 @@ RobotProgram export_program(const RobotModel& robot, const JointTrajectory& tr,
     o << "  $ACC.CP = " << fixed(std::max(1.2 * max_path_accel, 0.1), 4) << "\n";
     o << "  $VEL.ORI1 = " << fixed(std::max(1.2 * max_ori_speed * kRad2Deg, 10.0), 3) << "\n";
     o << "  $VEL.ORI2 = " << fixed(std::max(1.2 * max_ori_speed * kRad2Deg, 10.0), 3) << "\n";
-    o << "  $ACC.ORI1 = 400.000\n  $ACC.ORI2 = 400.000\n";
+    const std::string acc_ori = fixed(std::max(1.2 * max_ori_accel * kRad2Deg, 400.0), 3);
+    o << "  $ACC.ORI1 = " << acc_ori << "\n  $ACC.ORI2 = " << acc_ori << "\n";
     for (int j = 1; j <= kNumJoints; ++j)
       o << "  $VEL_AXIS[" << j << "] = " << percent(P.approach_speed) << "\n";
     for (int j = 1; j <= kNumJoints; ++j)
@@ -450,26 +501,34 @@ RobotProgram export_program(const RobotModel& robot, const JointTrajectory& tr,
       for (std::size_t i = 1; i < npts; ++i)
         o << "  PTP " << axes(tr.q[idx[i]]) << (i + 1 < npts ? " C_PTP" : "") << "\n";
     } else if (P.motion == ProgramMotion::kLinear) {
-      double vcur = -1;
+      double vcur = -1, wcur = -1;
+      const auto changed = [&](double now, double cur) {
+        return cur < 0 || std::abs(now - cur) > P.speed_change * cur;
+      };
       for (std::size_t i = 1; i < npts; ++i) {
-        const double v = segment_speed(i);
-        if (vcur < 0 || std::abs(v - vcur) > P.speed_change * vcur) {
-          o << "  $VEL.CP = " << fixed(v, 5) << "\n";
+        const double v = segment_speed(i), w = segment_ori_speed(i);
+        if (changed(v, vcur)) {
+          o << "  $VEL.CP = " << fixed(v, 7) << "\n";
           vcur = v;
+        }
+        if (changed(w, wcur)) {
+          o << "  $VEL.ORI1 = " << fixed(w * kRad2Deg, 4) << "\n";
+          o << "  $VEL.ORI2 = " << fixed(w * kRad2Deg, 4) << "\n";
+          wcur = w;
         }
         o << "  LIN " << krl_frame(X_WT[idx[i]]) << (i + 1 < npts ? " C_DIS" : "") << "\n";
       }
     } else {
-      o << "  $VEL.CP = " << fixed(segment_speed(1), 5) << "\n";
+      o << "  $VEL.CP = " << fixed(segment_speed(1), 7) << "\n";
       o << "  SPLINE\n";
       for (std::size_t i = 1; i < npts; ++i)
         o << "    SPL " << krl_frame(X_WT[idx[i]])
-          << " WITH $VEL.CP = " << fixed(segment_speed(i), 5) << "\n";
+          << " WITH $VEL.CP = " << fixed(segment_speed(i), 7) << "\n";
       o << "  ENDSPLINE\n";
     }
     o << "END\n";
   } else if (P.dialect == ProgramDialect::kRapid) {
-    write_rapid(o, robot, tr, P, X_ET, X_WT, idx, segment_speed, max_ori_speed);
+    write_rapid(o, robot, tr, P, X_ET, X_WT, idx, segment_speed, segment_ori_speed);
   } else {
     const auto joints = [&](const Vector6& q) {
       const Vector6 a = to_axes(q, P);
@@ -477,7 +536,9 @@ RobotProgram export_program(const RobotModel& robot, const JointTrajectory& tr,
       for (int j = 0; j < kNumJoints; ++j) s += (j ? ", " : "") + ur(a[j]);
       return s + "]";
     };
-    const double a_cart = std::max(1.2 * max_path_accel, 0.1);
+    // A UR ramps the tool's turn at kUrOriPerSpeed rad/s² per m/s² of a: a turn-governed move
+    // needs the plan's angular acceleration over that.
+    const double a_cart = std::max({1.2 * max_path_accel, 1.2 * max_ori_accel / kUrOriPerSpeed, 0.1});
     const double a_joint = std::max(1.2 * max_ddq.maxCoeff(), 0.1);
     o << "def " << P.name << "():\n";
     o << "  # flashtwin robot program (URScript): " << npts << " motion points, "
@@ -497,7 +558,8 @@ RobotProgram export_program(const RobotModel& robot, const JointTrajectory& tr,
         case ProgramMotion::kSpline:
           o << "  " << (P.motion == ProgramMotion::kLinear ? "movel" : "movep")
             << "(pose_trans(base_frame, " << ur_pose(X_WT[idx[i]]) << "), a=" << fixed(a_cart, 4)
-            << ", v=" << fixed(segment_speed(i), 5) << ", r=" << r << ")\n";
+            << ", v=" << fixed(std::max(segment_speed(i), segment_ori_speed(i) / kUrOriPerSpeed), 7)
+            << ", r=" << r << ")\n";
           break;
         case ProgramMotion::kJoint:
           o << "  movej(" << joints(tr.q[idx[i]]) << ", a=" << fixed(a_joint, 4)
@@ -602,7 +664,7 @@ ParsedProgram parse_krl(const std::string& text, const ProgramParams& P) {
   int line = 0;
   bool in_def = false, in_spline = false;
   std::string def_name;
-  double vel_cp = 0;
+  double vel_cp = 0, acc_cp = 0, vel_ori = 0, acc_ori = 0, apo_cdis = 0;
   while (std::getline(in, raw)) {
     ++line;
     std::string code = raw.substr(0, raw.find(';'));  // comments, folds
@@ -654,6 +716,22 @@ ParsedProgram parse_krl(const std::string& text, const ProgramParams& P) {
       vel_cp = parse_number(value, line, "$VEL.CP");
       continue;
     }
+    if (krl_assignment(up, "$ACC.CP", value)) {
+      acc_cp = parse_number(value, line, "$ACC.CP");
+      continue;
+    }
+    if (krl_assignment(up, "$VEL.ORI1", value)) {
+      vel_ori = parse_number(value, line, "$VEL.ORI1") * kDeg2Rad;
+      continue;
+    }
+    if (krl_assignment(up, "$ACC.ORI1", value)) {
+      acc_ori = parse_number(value, line, "$ACC.ORI1") * kDeg2Rad;
+      continue;
+    }
+    if (krl_assignment(up, "$APO.CDIS", value)) {
+      apo_cdis = parse_number(value, line, "$APO.CDIS") / 1000.0;
+      continue;
+    }
     if (first == "PTP" || first == "LIN" || first == "SPL" || first == "SPTP" || first == "SLIN") {
       if (first == "SPL" && !in_spline) parse_error(line, "SPL inside SPLINE ... ENDSPLINE", code);
       const auto agg = krl_aggregate(up, line);
@@ -666,7 +744,11 @@ ParsedProgram parse_krl(const std::string& text, const ProgramParams& P) {
         pt.cartesian = true;
         pt.X_WT = krl_pose(agg, line, code);
         pt.speed = vel_cp;
+        pt.accel = acc_cp;
+        pt.ori_speed = vel_ori;
+        pt.ori_accel = acc_ori;
       }
+      if (up.find("C_DIS") != std::string::npos) pt.blend = apo_cdis;
       const auto with = up.find("WITH");
       if (with != std::string::npos) {
         std::string v;
@@ -776,7 +858,11 @@ ParsedProgram parse_urscript(const std::string& text, const ProgramParams& P) {
         if (eq == std::string::npos) continue;
         const std::string key = trim(args[i].substr(0, eq));
         if (key == "v") pt.speed = parse_number(args[i].substr(eq + 1), line, "v");
+        if (key == "v" && pt.cartesian) pt.ori_speed = kUrOriPerSpeed * pt.speed;
         if (key == "t") pt.period = parse_number(args[i].substr(eq + 1), line, "t");
+        if (key == "a") pt.accel = parse_number(args[i].substr(eq + 1), line, "a");
+        if (key == "a" && pt.cartesian) pt.ori_accel = kUrOriPerSpeed * pt.accel;
+        if (key == "r") pt.blend = parse_number(args[i].substr(eq + 1), line, "r");
       }
       out.points.push_back(pt);
       continue;
@@ -833,6 +919,17 @@ Pose rapid_pose(const RapidValue& pos, const RapidValue& rot, int line) {
   if (!(q.norm() > 0.5)) parse_error(line, "a unit quaternion", "a near-zero one");
   X.linear() = q.normalized().toRotationMatrix();
   return X;
+}
+
+// A zonedata argument's TCP zone [m]: fine (0), a predefined zN (N mm) or an aggregate's
+// pzone_tcp.
+double rapid_zone_radius(const std::string& arg, int line) {
+  const std::string z = upper(trim(arg));
+  if (z == "FINE") return 0;
+  if (!z.empty() && z.front() == '[')
+    return rapid_item(rapid_value(z, line), 1, line, "zonedata").number / 1000.0;
+  if (z.size() > 1 && z.front() == 'Z') return parse_number(z.substr(1), line, "zonedata") / 1000.0;
+  parse_error(line, "a zone: fine, zN or [finep, pzone_tcp, ...]", arg);
 }
 
 ParsedProgram parse_rapid(const std::string& text, const ProgramParams& P) {
@@ -903,8 +1000,12 @@ ParsedProgram parse_rapid(const std::string& text, const ProgramParams& P) {
         pt.X_WT = rapid_pose(rapid_item(target, 0, line, "robtarget [trans, rot, ...]"),
                              rapid_item(target, 1, line, "robtarget [trans, rot, ...]"), line);
       }
-      if (!args[1].empty() && args[1].front() == '[')
-        pt.speed = rapid_item(rapid_value(args[1], line), 0, line, "speeddata").number / 1000.0;
+      if (!args[1].empty() && args[1].front() == '[') {
+        const RapidValue speed = rapid_value(args[1], line);
+        pt.speed = rapid_item(speed, 0, line, "speeddata").number / 1000.0;
+        pt.ori_speed = rapid_item(speed, 1, line, "speeddata").number * kDeg2Rad;
+      }
+      pt.blend = rapid_zone_radius(args[2], line);
       out.points.push_back(pt);
       continue;
     }

@@ -27,6 +27,18 @@ struct ScenarioScan;
 /// A planned path: its index among the detected paths and its plan (ok()).
 using PlannedPath = std::pair<std::size_t, planner::GrindResult>;
 
+/// One grinding motion as the executor runs it: the joint motion the robot is commanded and the
+/// tool poses it is meant to pass, from a plan or from a written program read back.
+struct Motion {
+  std::size_t path = 0;             ///< index of the detected path it grinds
+  sim::JointTrajectory trajectory;  ///< t, q, dq; planned_tcp_W is filled by Execution
+  std::vector<Pose> tcp_B;          ///< commanded tool pose per sample in the robot base {B}
+  double tool_radius = 0;           ///< [m] the burr it was planned for; 0: the robot's tool
+};
+
+/// A plan's motion: its trajectory and tool poses as planned.
+Motion motion_of(const PlannedPath& plan);
+
 /// What execution and the re-scan produced, for the metrics, the report and the video.
 struct ExecutionSummary {
   bool ran = false;
@@ -73,6 +85,9 @@ class Execution {
   /// (failed() then). @throws the executor's ArgumentError/InputError (bad parameters, names).
   void run(const ScenarioScan& scan, const std::vector<PlannedPath>& plans,
            const FrameHook& frame_hook = {}, std::size_t path_offset = 0);
+  /// As run, with the motions given (e.g. written programs read back and interpolated).
+  void run_motions(const ScenarioScan& scan, const std::vector<Motion>& motions,
+                   const FrameHook& frame_hook = {}, std::size_t path_offset = 0);
 
   bool failed() const { return summary_.failed; }
   const sim::MaterialGrid& grid() const { return *grid_; }

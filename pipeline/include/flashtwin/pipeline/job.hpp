@@ -3,8 +3,12 @@
 // part's pose, its flash paths, their plans, a rehearsal of them on the twin and the robot
 // programs, or a refusal with the reason.
 #include <string>
+#include <vector>
 
 #include <nlohmann/json.hpp>
+
+#include "flashtwin/core/robot.hpp"
+#include "flashtwin/pipeline/execution.hpp"
 
 namespace flashtwin::pipeline {
 
@@ -27,6 +31,25 @@ struct JobResult {
   std::string reason;           ///< one line, when refused
   nlohmann::ordered_json summary;  ///< what DIR/job.json holds
 };
+
+/// A job's written programs as the robot's controller runs them.
+struct ProgramMotions {
+  std::vector<Motion> motions;  ///< one per program, in DIR/plans.json's order
+  std::string failure;          ///< one line naming the program and its line, when one would not run
+  std::size_t programs = 0;     ///< programs read
+  double time_s = 0;            ///< [s] their motions' durations, summed
+  double max_joint_velocity_ratio = 0;  ///< largest |q̇_j| / limit_j the programs command
+  bool ok() const { return failure.empty(); }
+};
+
+/// Reads the programs DIR/plans.json lists (`motions[].program`, relative to DIR, with the burr
+/// each was planned for) and interpolates each as its controller would
+/// (planner::replay_program): the motions a cell running those files would make. A program the
+/// controller would stop (a target out of reach, a singularity or configuration change on the
+/// way, a joint limit) is the result's failure.
+/// @throws InputError naming the file: no plans.json or a malformed one, a listed program
+/// missing or not parsing in the robot's controller language, a motion without a program.
+ProgramMotions program_motions(const RobotModel& robot, const std::string& dir);
 
 /// Registration (the cell's calibrated X_WM and the CAD), flash detection, planning in the
 /// cell's robot base, then the rehearsal: the flash the scan shows rebuilt as material on the

@@ -7,6 +7,7 @@
 // targets are X_WT, the tool in the work frame. Joint values are the D-H angles mapped to the
 // controller's axes by value = sign·q + offset (identity by default).
 #include <array>
+#include <cmath>
 #include <cstddef>
 #include <optional>
 #include <string>
@@ -57,9 +58,16 @@ struct ProgramParams {
   double point_spacing = 0.002;
   /// When > 0, decimate by time instead: a point every round(time_step / dt) samples [s].
   double time_step = 0.0;
+  /// Linear and spline motions: a target is added wherever the straight moves between targets
+  /// would leave the planned TCP path by more than this (0: spacing alone) [m].
+  double chord_tolerance = 2e-5;
+  /// ... or turn the tool more than this away from the planned orientation [rad] (0.2°).
+  double angle_tolerance = 0.2 * M_PI / 180;
   double blend_radius = 0.0005;  ///< approximation (KRL $APO.CDIS) / UR blend radius r [m]
-  /// Programmed speeds below this are raised to it (the ramps start from rest) [m/s].
-  double min_speed = 0.0005;
+  /// Programmed speeds below this are raised to it [m/s]. Each move is programmed at the plan's
+  /// pace between its targets (chord / time, and the tool's turn / time as the orientation
+  /// speed where the dialect states one: KRL $VEL.ORI1/2, RAPID v_ori).
+  double min_speed = 1e-5;
   /// KRL: a new $VEL.CP is programmed when the speed changes by more than this fraction [-].
   double speed_change = 0.02;
   /// Controller axis = sign·q + offset; program_params_for(robot) takes the robot
@@ -110,6 +118,15 @@ struct ProgramPoint {
   Vector6 q = Vector6::Zero();   ///< joint target in D-H angles [rad] (sign/offset undone)
   double speed = 0;              ///< programmed speed: [m/s] Cartesian, [rad/s] UR movej; 0 if none
   double period = 0;             ///< UR servoj time t [s]; 0 otherwise
+  /// Cartesian acceleration of the move's ramps [m/s^2]: KRL $ACC.CP, UR a=; 0 if none stated.
+  double accel = 0;
+  /// Bound on the tool's rotation speed [rad/s]: KRL $VEL.ORI1, RAPID speeddata v_ori; 0 if none.
+  double ori_speed = 0;
+  /// Bound on the tool's angular acceleration [rad/s^2]: KRL $ACC.ORI1, UR 4·a; 0 if none.
+  double ori_accel = 0;
+  /// Approximation (blend) radius at the target [m]: KRL $APO.CDIS on a C_DIS move, UR r=,
+  /// RAPID zone (pzone_tcp or zN); 0 = an exact stop (no C_DIS, r=0, fine).
+  double blend = 0;
   std::string instruction;       ///< LIN, SPL, PTP, movel, movep, movej, servoj
   int line = 0;                  ///< 1-based line number in the text
 };
