@@ -446,6 +446,28 @@ int cmd_job(const Common& c, ft::pipeline::JobInputs in, const std::string& scan
   return r.refused ? kExitFailed : kExitOk;
 }
 
+int cmd_replay(const Common& c, const std::string& scenario_path, const std::string& job_dir,
+               const std::string& out, long long seed_override, const std::vector<std::string>& sets) {
+  ft::pipeline::Scenario sc = ft::pipeline::load_scenario(scenario_path, sets);
+  if (seed_override >= 0) ft::pipeline::set_seed(sc, static_cast<std::uint64_t>(seed_override));
+  const auto r = ft::pipeline::replay_job(sc, job_dir, out);
+  const auto& m = r.metrics;
+  if (c.json) {
+    std::cout << m.dump() << "\n";
+  } else {
+    std::printf("replay of %s's %zu program(s) on %s seed %llu (%.1f s as the controller runs "
+                "them): %.2f %% of the true flash removed, highest residual %.3f mm, deepest "
+                "gouge %.3f mm; %s/metrics.json\n",
+                job_dir.c_str(), m.value("program.count", std::size_t{0}), sc.name.c_str(),
+                static_cast<unsigned long long>(sc.seed), m.value("program.time_s", 0.0),
+                100 * m.value("removal.flash_removed_fraction", 0.0),
+                m.value("removal.residual_flash_max_mm", 0.0), m.value("removal.gouge_max_mm", 0.0),
+                out.c_str());
+    if (!r.pass) std::printf("part FAILS: %s\n", r.reason.c_str());
+  }
+  return r.pass ? kExitOk : kExitFailed;
+}
+
 int cmd_detect(const Common& c, const std::string& scan_path, const std::string& cad_path,
                const std::string& pose_path, const std::string& out) {
   const ft::PointCloud scan = read_points(scan_path);
@@ -823,6 +845,23 @@ int main(int argc, char** argv) {
       ->capture_default_str()->check(CLI::Range(1, 64));
   job->add_flag("--json", common.json, "Print job.json's content");
 
+  auto* rep = app.add_subcommand(
+      "replay", "Run a job's written robot programs on the twin's own part for a scenario's seed "
+                "(its true casting, flash and placement: what `flashtwin scan` scanned with that "
+                "seed): each program read back and interpolated as its controller runs it, ground "
+                "in MuJoCo, scored against the truth into DIR/metrics.json; exit 1 when the part "
+                "misses the scenario's quality: limits or a program would not run");
+  std::string rep_job;
+  long long rep_seed = -1;
+  std::vector<std::string> rep_sets;
+  rep->add_option("scenario", scenario, "Scenario YAML (the one the scan was made with)")->required();
+  rep->add_option("--job", rep_job, "A `flashtwin job` output folder (job.json, plans.json, plan/)")
+      ->required();
+  rep->add_option("-o,--output", out, "Output folder (metrics.json, cell/)")->required();
+  rep->add_option("--seed", rep_seed, "Override the scenario's seed (the scan's --seed)");
+  rep->add_option("--set", rep_sets, "Override a scenario key: dotted.key=value; repeatable");
+  rep->add_flag("--json", common.json, "Print metrics.json to stdout");
+
   auto* det = app.add_subcommand(
       "detect", "Find flashes in a registered scan: grinding paths on the CAD surface (exit 0 "
                 "with an empty path when there is nothing to grind)");
@@ -944,6 +983,7 @@ int main(int argc, char** argv) {
     if (*scan) return cmd_scan(common, scenario, out, scan_seed);
     if (*det) return cmd_detect(common, scan_path, cad_path, pose_path, out);
     if (*job) return cmd_job(common, job_in, job_scan_units, job_cad_units);
+    if (*rep) return cmd_replay(common, scenario, rep_job, out, rep_seed, rep_sets);
     if (*run)
       return cmd_run(common, scenario, out, run_seed, sets, run_video, video_path, no_report,
                      run_check, run_threads);

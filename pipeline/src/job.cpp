@@ -271,6 +271,59 @@ ProgramMotions program_motions(const RobotModel& robot, const std::string& dir) 
   return out;
 }
 
+ReplayResult replay_job(const Scenario& sc, const std::string& job_dir, const std::string& out_dir) {
+  if (out_dir.empty()) throw ArgumentError("replay: expected an output folder");
+  const std::string job_file = (fs::path(job_dir) / "job.json").string();
+  json job;
+  try {
+    job = json::parse(read_text_file(job_file));
+  } catch (const json::exception& e) {
+    throw InputError(job_file + ": expected the JSON a job writes, got " + e.what());
+  }
+  if (job.value("refused", false))
+    throw InputError(job_file + ": expected a job that wrote programs, got a refusal (" +
+                     job.value("reason", std::string("no reason")) + ")");
+  if (job.value("robot", std::string()) != sc.robot.name)
+    throw InputError(job_file + ": robot: expected " + sc.robot.name + " (the scenario's), got '" +
+                     job.value("robot", std::string()) + "'");
+  ProgramMotions pm = program_motions(sc.robot, job_dir);
+  if (pm.programs == 0)
+    throw InputError((fs::path(job_dir) / "plans.json").string() + ": expected programs, got none");
+
+  ReplayResult r;
+  json& m = r.metrics;
+  m["job"] = job_dir;
+  m["scenario"] = sc.name;
+  m["seed"] = sc.seed;
+  m["robot"] = sc.robot.name;
+  m["program.count"] = pm.programs;
+  m["program.time_s"] = pm.time_s;
+  m["program.max_joint_velocity_ratio"] = pm.max_joint_velocity_ratio;
+  ensure_directory(out_dir);
+  if (!pm.ok()) {
+    r.reason = "a program would not run: " + pm.failure;
+    m["quality.pass"] = false;
+    m["quality.failures"] = json::array({r.reason});
+  } else {
+    // The twin's part for this seed, where it truly lies; the robot base as the cell has it.
+    ScenarioScan ss;
+    ss.setup = setup_cell(sc);
+    ss.files = sim::write_cell(sc.robot, ss.setup.spec, ss.setup.casting,
+                               (fs::path(out_dir) / "cell").string());
+    m["casting.flash_volume_mm3"] = ss.setup.casting.flash_volume() * 1e9;
+    Execution ex(sc, ss.setup.casting);
+    ex.run_motions(ss, pm.motions);
+    ex.finish(m);
+    const auto failures = quality_failures(sc.quality, m);
+    m["quality.pass"] = failures.empty();
+    m["quality.failures"] = failures;
+    if (!failures.empty()) r.reason = "the part misses its quality limits: " + json(failures).dump();
+  }
+  r.pass = r.reason.empty();
+  write_text_file((fs::path(out_dir) / "metrics.json").string(), m.dump(1) + "\n");
+  return r;
+}
+
 JobResult run_job(const JobInputs& in) {
   if (in.out_dir.empty()) throw ArgumentError("job: expected an output folder");
   omp_set_num_threads(std::max(1, in.threads));

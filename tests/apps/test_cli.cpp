@@ -168,6 +168,19 @@ TEST(Cli, JobFromAPlainScanAndCadPlansThePartWhereItIs) {
               twin["removal.flash_removed_fraction"].get<double>(), 0.02);
   EXPECT_NEAR(js["rehearsal.removal.gouge_max_mm"].get<double>(),
               twin["removal.gouge_max_mm"].get<double>(), 0.05);
+  EXPECT_EQ(js["rehearsal.motion"], "program");  // the written programs, read back, rehearsed
+
+  // The job's programs run as the controller runs them on the twin's true part (what the scan
+  // saw): the part to its limits, as the twin's own run of the plans.
+  const CliRun rp = run("-q replay --json " + cell + " --job " + d + "/job -o " + d + "/replay");
+  ASSERT_EQ(rp.code, 0) << rp.out << rp.err;
+  const auto rj = nlohmann::json::parse(rp.out);
+  EXPECT_EQ(rj["program.count"].get<int>(), js["trajectory.path_pieces"].get<int>());
+  EXPECT_GE(rj["removal.flash_removed_fraction"].get<double>(), 0.99);
+  EXPECT_LE(rj["removal.residual_flash_max_mm"].get<double>(), 0.2);
+  EXPECT_LE(rj["removal.gouge_max_mm"].get<double>(), 0.1);
+  EXPECT_NEAR(rj["removal.flash_removed_fraction"].get<double>(),
+              twin["removal.flash_removed_fraction"].get<double>(), 0.01);
 
   // The same scan and CAD in millimetres: units guessed, the same pose.
   flashtwin::PointCloud mm = flashtwin::load_cloud(d + "/scan/scan.ply");
@@ -193,6 +206,10 @@ TEST(Cli, JobFromAPlainScanAndCadPlansThePartWhereItIs) {
   EXPECT_FALSE(std::filesystem::exists(d + "/job/plans.json"));
   std::ifstream rf(d + "/job/job.json");
   EXPECT_TRUE(nlohmann::json::parse(rf)["refused"].get<bool>());
+  // A refused job has no program to replay: bad input, exit 2, naming its job.json.
+  const CliRun rr = run("-q replay " + cell + " --job " + d + "/job -o " + d + "/replay_refused");
+  EXPECT_EQ(rr.code, 2) << rr.out << rr.err;
+  EXPECT_NE(rr.err.find("job.json: expected a job that wrote programs"), std::string::npos) << rr.err;
 }
 
 TEST(Cli, UnreachablePoseExitsOneWithReason) {

@@ -7,6 +7,7 @@
 #include <filesystem>
 
 #include "flashtwin/core/io.hpp"
+#include "flashtwin/pipeline/job.hpp"
 #include "flashtwin/pipeline/run.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
 #include "flashtwin/planner/program_export.hpp"
@@ -72,6 +73,14 @@ TEST_P(DefaultScenarioArms, GrindsThePlateToItsLimitsAndWritesItsControllersProg
   for (int j = 0; j < 6; ++j)
     EXPECT_NEAR(parsed.points[0].q[j], v[1 + j], 1e-4) << a.robot << " joint " << j + 1;
   EXPECT_GT(parsed.points.size(), 3u);
+
+  // Every program the run wrote, interpolated as its controller runs it: it runs (reachable,
+  // continuous, within the limits) and takes about the plan's time.
+  const pipeline::ProgramMotions pm = pipeline::program_motions(sc.robot, o.out_dir);
+  EXPECT_TRUE(pm.ok()) << a.robot << ": " << pm.failure;
+  EXPECT_EQ(pm.programs, m["trajectory.path_pieces"].get<std::size_t>()) << a.robot;
+  EXPECT_NEAR(pm.time_s / m["trajectory.total_time_s"].get<double>(), 1.0, 0.1) << a.robot;
+  EXPECT_LE(pm.max_joint_velocity_ratio, 1.0) << a.robot;
 }
 
 INSTANTIATE_TEST_SUITE_P(Library, DefaultScenarioArms,

@@ -51,6 +51,25 @@ struct ProgramMotions {
 /// missing or not parsing in the robot's controller language, a motion without a program.
 ProgramMotions program_motions(const RobotModel& robot, const std::string& dir);
 
+struct Scenario;
+
+/// What `flashtwin replay` measured.
+struct ReplayResult {
+  nlohmann::ordered_json metrics;  ///< what OUT/metrics.json holds
+  bool pass = false;               ///< the part meets the scenario's quality limits
+  std::string reason;              ///< one line, when it does not (or a program would not run)
+};
+
+/// `flashtwin replay`: a job's written programs run on the twin's own part for the scenario's
+/// seed — its true casting, flash and placement, the part `flashtwin scan` scanned with that
+/// seed. The programs are read back and interpolated as the controller runs them
+/// (program_motions), ground in MuJoCo against the true material and scored against the truth:
+/// OUT/metrics.json (program.*, execution.*, removal.*, force.*, quality.*) and OUT/cell/.
+/// @throws InputError naming the file: a job folder without job.json/plans.json or programs, a
+/// refused job, a job for another robot than the scenario's.
+ReplayResult replay_job(const Scenario& scenario, const std::string& job_dir,
+                        const std::string& out_dir);
+
 /// Registration (the cell's calibrated X_WM and the CAD), flash detection, planning in the
 /// cell's robot base, then the rehearsal: the flash the scan shows rebuilt as material on the
 /// CAD part (one slab per detected path: its root, the heights of its region's flash points,
