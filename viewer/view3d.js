@@ -504,7 +504,8 @@
 
   // ---- Title, verdict.
   const meta = data.meta || {};
-  document.getElementById('ft-title').textContent = 'flashtwin 3D view: ' + meta.scenario + ', seed ' + meta.seed;
+  document.getElementById('ft-title').textContent =
+    'flashtwin 3D view: ' + (meta.title || meta.scenario + ', seed ' + meta.seed);
   const vd = document.getElementById('ft-verdict');
   vd.textContent = (meta.exit_code === 0 ? 'exit 0: ' : 'exit ' + meta.exit_code + ': ') + (meta.verdict || '');
   vd.className = meta.exit_code === 0 ? 'ok' : 'bad';

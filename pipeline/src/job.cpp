@@ -13,6 +13,7 @@
 #include "flashtwin/pipeline/pose_json.hpp"
 #include "flashtwin/pipeline/execution.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
+#include "flashtwin/pipeline/view3d.hpp"
 #include "flashtwin/planner/program_replay.hpp"
 #include "flashtwin/sim/cell.hpp"
 #include "stages.hpp"
@@ -66,7 +67,8 @@ TriangleMesh read_cad(const JobInputs& in) {
 
 // What a job writes that a real cell would run or rely on: removed before it starts, so that a
 // refusal never leaves an earlier job's programs standing beside its reason.
-constexpr const char* kJobResults[] = {"plan", "plans.json", "trajectory.csv", "job.json"};
+constexpr const char* kJobResults[] = {"plan", "plans.json", "trajectory.csv", "job.json",
+                                       "view3d.html"};
 
 // The job's refusal: DIR/job.json says why; no program is written.
 JobResult refuse(JobResult r, const std::string& reason, const fs::path& dir) {
@@ -180,13 +182,20 @@ sim::Casting part_as_scanned(const TriangleMesh& cad, const MeshBvh& bvh, const 
   return part;
 }
 
+// What the rehearsal ground and predicted.
+struct Rehearsal {
+  std::string refusal;  ///< why the job must refuse; "" when the rehearsed part is within limits
+  ScenarioScan cell;    ///< the part as scanned, in the twin's cell (setup, files)
+  ExecutionSummary execution;  ///< ran = false when no program would run
+};
+
 // Grinds the part as scanned in the twin with the written programs as the controller runs them
 // (the plans themselves for a robot without a program language): DIR/rehearsal/cell/ and the
-// rehearsal.* metrics (removal, execution, force, quality) into `m`. Returns the reason the
-// job must refuse, "" when the rehearsed part is within its limits.
-std::string rehearse(const Scenario& sc, const CellSetup& cell, const MeshBvh& cad_bvh,
-                     const Perception& perc, const PointCloud& scan_M, const Plans& plans,
-                     const fs::path& staging, const fs::path& dir, json& m) {
+// rehearsal.* metrics (removal, execution, force, quality) into `m`.
+Rehearsal rehearse(const Scenario& sc, const CellSetup& cell, const MeshBvh& cad_bvh,
+                   const Perception& perc, const PointCloud& scan_M, const Plans& plans,
+                   const fs::path& staging, const fs::path& dir, json& m) {
+  Rehearsal out;
   std::vector<Motion> motions;
   if (sc.robot.controller.language == "none") {
     for (const auto& p : plans.paths) motions.push_back(motion_of(p));
@@ -197,39 +206,65 @@ std::string rehearse(const Scenario& sc, const CellSetup& cell, const MeshBvh& c
     m["rehearsal.programs"] = pm.programs;
     m["rehearsal.program_time_s"] = pm.time_s;
     m["rehearsal.program_max_joint_velocity_ratio"] = pm.max_joint_velocity_ratio;
-    if (!pm.ok()) return "a program would not run: " + pm.failure;
+    if (!pm.ok()) {
+      out.refusal = "a program would not run: " + pm.failure;
+      return out;
+    }
     motions = std::move(pm.motions);
   }
-  CellSetup setup;
-  setup.casting = part_as_scanned(cell.casting.nominal, cad_bvh, perc, scan_M);
-  setup.spec = cell.spec;
-  setup.spec.X_WC = cell.spec.X_WM * perc.X_CM_est.inverse();
-  ScenarioScan ss;
-  ss.setup = setup;
-  ss.files = sim::write_cell(sc.robot, setup.spec, setup.casting, (dir / "rehearsal" / "cell").string());
+  ScenarioScan& ss = out.cell;
+  ss.setup.casting = part_as_scanned(cell.casting.nominal, cad_bvh, perc, scan_M);
+  ss.setup.spec = cell.spec;
+  ss.setup.spec.X_WC = cell.spec.X_WM * perc.X_CM_est.inverse();
+  ss.files = sim::write_cell(sc.robot, ss.setup.spec, ss.setup.casting,
+                             (dir / "rehearsal" / "cell").string());
+  ss.scan.result.cloud_M = scan_M;  // for the 3D view
+  ss.scan.X_WM_nominal = ss.scan.X_WM_true = cell.spec.X_WM;
   Execution ex(sc, ss.setup.casting);
   ex.run_motions(ss, motions);
   json r;
-  ex.finish(r);
+  out.execution = ex.finish(r);
   const auto failures = quality_failures(sc.quality, r);
   r["quality.pass"] = failures.empty();
   r["quality.failures"] = failures;
   for (auto it = r.begin(); it != r.end(); ++it) m["rehearsal." + it.key()] = it.value();
-  return failures.empty() ? ""
-                          : "the rehearsal predicts a part outside its quality limits: " +
-                                json(failures).dump();
+  if (!failures.empty())
+    out.refusal = "the rehearsal predicts a part outside its quality limits: " + json(failures).dump();
+  return out;
+}
+
+// DIR/view3d.html of the job: the CAD, the scan by perception's labels, the detected paths, the
+// planned tool paths, the rehearsal's predicted residual flash and gouges and the arm along the
+// rehearsed programs, all at the estimated pose.
+void write_job_view(const Scenario& sc, const Rehearsal& reh, const Perception& perc,
+                    const Plans& plans, const std::string& verdict, bool refused,
+                    const std::string& scan_path, const fs::path& dir) {
+  RunResult result;
+  result.detection = perc.detection;
+  result.registration = perc.registration;
+  result.verdict = verdict;
+  result.exit_code = refused ? 1 : 0;
+  const ReportInputs in{sc, reh.cell, result, plans.paths, reh.execution};
+  View3dParams vp;
+  vp.title = "job on " + fs::path(scan_path).filename().string() + " (" + sc.robot.name +
+             "; residual and gouges as the rehearsal predicts them)";
+  write_text_file((dir / "view3d.html").string(), view3d_html(in, vp));
+}
+
+// A JSON file a job wrote. @throws IoError (missing), InputError (not JSON) naming it.
+json read_job_json(const std::string& path) {
+  try {
+    return json::parse(read_text_file(path));
+  } catch (const json::exception& e) {
+    throw InputError(path + ": expected the JSON a job writes, got " + e.what());
+  }
 }
 
 }  // namespace
 
 ProgramMotions program_motions(const RobotModel& robot, const std::string& dir) {
   const std::string plans_file = (fs::path(dir) / "plans.json").string();
-  json plans;
-  try {
-    plans = json::parse(read_text_file(plans_file));
-  } catch (const json::exception& e) {
-    throw InputError(plans_file + ": expected the JSON a job writes, got " + e.what());
-  }
+  const json plans = read_job_json(plans_file);
   const planner::ProgramParams pp = planner::program_params_for(robot);
   ProgramMotions out;
   for (const auto& path : plans) {
@@ -274,12 +309,7 @@ ProgramMotions program_motions(const RobotModel& robot, const std::string& dir) 
 ReplayResult replay_job(const Scenario& sc, const std::string& job_dir, const std::string& out_dir) {
   if (out_dir.empty()) throw ArgumentError("replay: expected an output folder");
   const std::string job_file = (fs::path(job_dir) / "job.json").string();
-  json job;
-  try {
-    job = json::parse(read_text_file(job_file));
-  } catch (const json::exception& e) {
-    throw InputError(job_file + ": expected the JSON a job writes, got " + e.what());
-  }
+  const json job = read_job_json(job_file);
   if (job.value("refused", false))
     throw InputError(job_file + ": expected a job that wrote programs, got a refusal (" +
                      job.value("reason", std::string("no reason")) + ")");
@@ -374,10 +404,13 @@ JobResult run_job(const JobInputs& in) {
     fs::remove_all(staging);
     return refuse(std::move(r), "not every path is feasible: " + plans.first_failure, dir);
   }
-  const std::string rehearsal = rehearse(sc, setup, cad_bvh, perc, scan_M, plans, staging, dir, m);
-  if (!rehearsal.empty()) {
+  const Rehearsal reh = rehearse(sc, setup, cad_bvh, perc, scan_M, plans, staging, dir, m);
+  if (reh.execution.ran)
+    write_job_view(sc, reh, perc, plans, reh.refusal.empty() ? "programs written" : "refused: " + reh.refusal,
+                   !reh.refusal.empty(), in.scan, dir);
+  if (!reh.refusal.empty()) {
     fs::remove_all(staging);
-    return refuse(std::move(r), rehearsal, dir);
+    return refuse(std::move(r), reh.refusal, dir);
   }
   for (const char* name : kJobResults)
     if (fs::exists(staging / name)) fs::rename(staging / name, dir / name);

@@ -166,10 +166,14 @@ json page_data(const ReportInputs& in, const View3dParams& P) {
                {"exit_code", in.result.exit_code},
                {"frame", "{C}"},
                {"units", "mm"}};
+  if (!P.title.empty()) d["meta"]["title"] = P.title;
   d["cad"] = cad_layer(casting.nominal);
+  // The true flash roots: a twin's castings have them; a job's part (its flash rebuilt from the
+  // scan along the detected paths) has none to show.
   json roots = json::array();
-  for (const auto& f : casting.fins) roots.push_back(polyline(f.root, f.closed));
-  d["roots"] = roots;
+  for (const auto& f : casting.fins)
+    if (f.kind != "rehearsal") roots.push_back(polyline(f.root, f.closed));
+  if (!roots.empty()) d["roots"] = roots;
   if (in.result.detection.ran) {
     d["scan"] = scan_layer(in, P);
     json paths = json::array();

@@ -7,6 +7,7 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "flashtwin/core/io.hpp"
 #include "flashtwin/core/mesh.hpp"
 #include "flashtwin/core/transform.hpp"
 #include "test_util.hpp"
@@ -169,6 +170,12 @@ TEST(Cli, JobFromAPlainScanAndCadPlansThePartWhereItIs) {
   EXPECT_NEAR(js["rehearsal.removal.gouge_max_mm"].get<double>(),
               twin["removal.gouge_max_mm"].get<double>(), 0.05);
   EXPECT_EQ(js["rehearsal.motion"], "program");  // the written programs, read back, rehearsed
+  // Its 3D view: the scan, the paths, the tool paths, the rehearsal's prediction and the arm.
+  const std::string view = flashtwin::read_text_file(d + "/job/view3d.html");
+  EXPECT_NE(view.find("job on scan.ply"), std::string::npos);
+  for (const char* layer : {"\"scan\":", "\"toolpath\":", "\"residual\":", "\"robot\":"})
+    EXPECT_NE(view.find(layer), std::string::npos) << layer;
+  EXPECT_EQ(view.find("\"roots\":"), std::string::npos);  // no truth in a job's view
 
   // The job's programs run as the controller runs them on the twin's true part (what the scan
   // saw): the part to its limits, as the twin's own run of the plans.

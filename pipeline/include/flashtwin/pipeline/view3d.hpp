@@ -20,6 +20,8 @@ struct View3dParams {
   std::size_t scan_points = 150000;  ///< scan points stored at most
   std::size_t map_points = 60000;    ///< residual flash / gouge voxels stored at most, each
   std::size_t robot_frames = 1500;   ///< keyframes of the executed motion at most
+  /// The page's title after "flashtwin 3D view: "; empty: the scenario's name and seed.
+  std::string title;
 };
 
 /// The page as one HTML string (write_report writes it to DIR/view3d.html and embeds it).
