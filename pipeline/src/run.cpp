@@ -568,7 +568,7 @@ Plans plan_setup(const Scenario& sc, const CellSetup& setup, const Perception& p
         const std::string program = write_plan_files(sc, gk, dir, name, opt.report);
         // What the cell runs for this motion: the program and the burr it was planned for.
         json pr = {{"program", program},
-                   {"tool_radius_mm", (gk.tool_radius > 0 ? gk.tool_radius : sc.robot.tool.radius) * 1e3}};
+                   {"tool_radius_mm", gk.tool_radius * 1e3}};
         pj["motions"].push_back(pr);
         if (planned == 1 && piece == 0) write_text_file((dir / "trajectory.csv").string(), planner::trajectory_csv(gk));
       }
