@@ -139,14 +139,19 @@ void Execution::run_motions(const ScenarioScan& ss, const std::vector<Motion>& m
     sim::ToolParams path_tool = tool;
     if (motion.tool_radius > 0) path_tool.radius = motion.tool_radius;
     path_tool.radius += sc_.faults.tool_radius_error;  // a drill: not the burr planned for
+    // The flange sensor's noise, offset and drift: one stream per motion of this run.
+    ep.sensor_seed = sc_.seed * 0x9E3779B97F4A7C15ull + 0x5E15E0ull + 131 * static_cast<std::uint64_t>(k) +
+                     static_cast<std::uint64_t>(setup_index);
     const sim::ExecutionResult r =
         sim::execute_trajectory(*model, tr, &grid, path_tool, sc_.execution.force, ep);
     ++executed_;
     spdlog::debug("execution: path {}: {} ({}), {:.1f} s simulated in {:.2f} s, tracking rmse "
-                  "{:.3f} mm, flash removed {:.2f} mm3, gouge {:.3f} mm3, {} removal steps in {} steps",
+                  "{:.3f} mm, flash removed {:.2f} mm3, gouge {:.3f} mm3, {} removal steps in {} steps; "
+                  "deepest {:.3f} mm at {:.2f} s (tracking error {:.3f} mm)",
                   k, sim::to_string(r.status), r.message, r.sim_time, r.wall_time,
                   r.tracking_rmse * 1e3, r.removed_flash_volume * 1e9,
-                  r.removed_body_volume * 1e9, r.removal_steps, r.steps);
+                  r.removed_body_volume * 1e9, r.removal_steps, r.steps, r.max_penetration * 1e3,
+                  r.max_penetration_time, r.max_penetration_tracking * 1e3);
     const auto& L = r.log;
     auto& out = summary_;
     for (std::size_t i = 0; i < L.t.size(); ++i) {
@@ -176,6 +181,10 @@ void Execution::run_motions(const ScenarioScan& ss, const std::vector<Motion>& m
       f_sq_ += r.force_rmse * r.force_rmse * r.contact_time;
     }
     f_max_ = std::max(f_max_, r.force_max);
+    if (r.load_estimate_rmse > 0) {
+      load_est_sq_ += r.load_estimate_rmse * r.load_estimate_rmse * r.contact_time;
+      load_est_n_ += r.contact_time;
+    }
     if (r.status != sim::ExecStatus::kOk && status_ == "ok") status_ = sim::to_string(r.status);
     if (r.status == sim::ExecStatus::kForceLimit) {
       ++force_stops_;
@@ -206,6 +215,8 @@ ExecutionSummary Execution::finish(json& m) {
   m["execution.max_limit_excess_rad"] = limit_excess_;
   m["execution.clamped_steps"] = clamped_;
   m["execution.force_control"] = sc_.execution.exec.force_control.enabled;
+  m["execution.compensation"] = sim::to_string(sc_.execution.exec.compensation_source);
+  m["execution.load_estimate_rmse_n"] = load_est_n_ ? std::sqrt(load_est_sq_ / load_est_n_) : 0.0;
   const auto& res = out.residual;
   m["removal.flash_volume_mm3"] = res.flash_volume_initial * 1e9;
   m["removal.flash_remaining_mm3"] = res.flash_volume_remaining * 1e9;

@@ -451,6 +451,28 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     e.exec.max_force = ex.get_double("max_force", 0, 1e7, e.exec.max_force);
     e.exec.feedforward = ex.get_bool("feedforward", e.exec.feedforward);
     e.exec.load_compensation = ex.get_bool("load_compensation", e.exec.load_compensation);
+    e.exec.tcp_damping = ex.get_double("tcp_damping", 0, 1e6, e.exec.tcp_damping);
+    if (ex.has("compensation")) {
+      const std::string src = ex.get_string("compensation", "");
+      if (src == "sensor") e.exec.compensation_source = sim::CompensationSource::kSensor;
+      else if (src == "process_model") e.exec.compensation_source = sim::CompensationSource::kProcessModel;
+      else ex.at("compensation").fail("expected \"sensor\" or \"process_model\"");
+    }
+    if (ex.has("sensor")) {
+      const ConfigNode sn = ex.at("sensor");
+      auto& fs = e.exec.sensor;
+      fs.period = sn.get_double("period", 1e-4, 0.1, fs.period);
+      fs.cutoff = sn.get_double("cutoff", 0.1, 1e5, fs.cutoff);
+      fs.force_noise = sn.get_double("force_noise", 0, 1e3, fs.force_noise);
+      fs.torque_noise = sn.get_double("torque_noise", 0, 1e2, fs.torque_noise);
+      fs.force_offset = sn.get_double("force_offset", 0, 1e4, fs.force_offset);
+      fs.torque_offset = sn.get_double("torque_offset", 0, 1e3, fs.torque_offset);
+      fs.force_drift = sn.get_double("force_drift", 0, 1e3, fs.force_drift);
+      fs.torque_drift = sn.get_double("torque_drift", 0, 1e2, fs.torque_drift);
+      fs.force_range = sn.get_double("force_range", 1, 1e6, fs.force_range);
+      fs.torque_range = sn.get_double("torque_range", 0.1, 1e5, fs.torque_range);
+      fs.tare_time = sn.get_double("tare_time", 0, 1, fs.tare_time);
+    }
     e.exec.log_decimation =
         static_cast<int>(ex.get_int("log_decimation", 1, 100000, e.exec.log_decimation));
     if (ex.has("force_control")) {
@@ -461,6 +483,7 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
       f.gain = fc.get_double("gain", 0, 1, f.gain);
       f.max_correction = fc.get_double("max_correction", 0, 0.05, f.max_correction);
       f.release_time = fc.get_double("release_time", 0, 10, f.release_time);
+      f.contact_force = fc.get_double("contact_force", 0, 1000, f.contact_force);
     }
   }
   if (root.has("process")) {

@@ -276,11 +276,12 @@ std::string arm_mjcf(const RobotModel& robot, const Pose& X_WB, const CellSpec& 
   const Pose C6 = dh_constant(robot.dh[5]);
   const ToolDescription& tool = robot.tool;
   const double tool_len = tool.X_ET.translation().norm();
-  // The tool body sits at the flange {E}; its frame is {E}.
-  os << indent << "<site name=\"flange\" " << pose_attrs(C6)
-     << " size=\"0.01\" rgba=\"0.9 0.1 0.1 1\" group=\"3\"/>\n"
-     << indent << "<body name=\"tool\" " << pose_attrs(C6) << ">\n"
+  // The tool body sits at the flange {E}; its frame is {E}. The flange site (the F/T sensor's
+  // frame) is on the tool body, so the sensor measures the wrist's wrench on the tool alone.
+  os << indent << "<body name=\"tool\" " << pose_attrs(C6) << ">\n"
      << indent << "  " << inertial_xml(tool.inertial, Pose::Identity()) << "\n"
+     << indent << "  <site name=\"flange\" pos=\"0 0 0\" size=\"0.01\" rgba=\"0.9 0.1 0.1 1\" "
+     << "group=\"3\"/>\n"
      << indent << "  <geom name=\"spindle\" type=\"cylinder\" fromto=\"0 0 0 0 0 "
      << num(std::max(0.0, tool_len - tool.length)) << "\" size=\"" << num(kSpindleRadius) << "\" contype=\"0\" "
      << "conaffinity=\"0\" group=\"1\" material=\"spindle\"/>\n"

@@ -4,10 +4,12 @@
 #include <chrono>
 #include <cmath>
 #include <deque>
+#include <optional>
 #include <string>
 
 #include "flashtwin/core/format.hpp"
 #include "flashtwin/core/errors.hpp"
+#include "flashtwin/sim/ft_sensor.hpp"
 #include "flashtwin/sim/mujoco_handles.hpp"
 
 namespace flashtwin::sim {
@@ -65,7 +67,9 @@ CellIndex index_model(const mjModel* m) {
     c.force_adr = m->sensor_adr[fs];
     c.force_site = m->sensor_objid[fs];
   }
-  if (ts >= 0 && m->sensor_type[ts] == mjSENS_TORQUE) c.torque_adr = m->sensor_adr[ts];
+  if (ts >= 0 && m->sensor_type[ts] == mjSENS_TORQUE && m->sensor_objtype[ts] == mjOBJ_SITE &&
+      m->sensor_objid[ts] == c.force_site)
+    c.torque_adr = m->sensor_adr[ts];
   return c;
 }
 
@@ -236,6 +240,10 @@ bool bad_state(const mjModel* m, const mjData* d) {
 
 }  // namespace
 
+const char* to_string(CompensationSource source) {
+  return source == CompensationSource::kSensor ? "sensor" : "process_model";
+}
+
 const char* to_string(ExecStatus status) {
   switch (status) {
     case ExecStatus::kOk:
@@ -278,6 +286,11 @@ void check_exec_params(const ExecParams& p) {
     bad("force_control.max_correction", "a finite distance >= 0 [m]", f.max_correction);
   if (!(std::isfinite(f.release_time) && f.release_time > 0))
     bad("force_control.release_time", "a finite time > 0 [s]", f.release_time);
+  if (!(std::isfinite(f.contact_force) && f.contact_force >= 0))
+    bad("force_control.contact_force", "a finite force >= 0 [N]", f.contact_force);
+  if (!(std::isfinite(p.tcp_damping) && p.tcp_damping >= 0))
+    bad("tcp_damping", "a finite damping >= 0 [N*s/m]", p.tcp_damping);
+  check_ft_sensor_params(p.sensor);
 }
 
 ExecutionResult execute_trajectory(const std::string& mjcf_path, const JointTrajectory& trajectory,
@@ -304,6 +317,13 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
   mjModel* m = mp.get();
   m->opt.timestep = h;
   const CellIndex c = index_model(m);
+  const bool reads_sensor =
+      params.load_compensation || params.force_control.enabled || params.max_force > 0;
+  const bool has_sensor = c.force_adr >= 0 && c.torque_adr >= 0 && m->site_bodyid[c.force_site] == c.tool;
+  if (reads_sensor && !has_sensor)
+    throw InputError("model: the controller reads the flange F/T sensor (load compensation, force "
+                     "control or the protective stop): expected sensors 'flange_force' and "
+                     "'flange_torque' on one site of body 'tool'");
   for (int i = 0; i < kNumJoints; ++i) m->actuator_ctrllimited[c.act[i]] = 0;
   // The process model is the tool's only contact. When no geom of a moving body can collide
   // (the cell's contract: arm geoms have contype = conaffinity = 0), MuJoCo's collision pass
@@ -403,7 +423,6 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
   double last_contact = -1e300;  // [s] simulated time of the last step in contact
   Pose X_CT_last = Pose::Identity();
   double since_removal = 0, removed_total = 0;
-  Vec3 normal_W = Vec3::Zero();  // last contact normal (material → tool axis)
   double delta = 0;              // admittance correction into the material [m]
   const double motion_trigger = grid ? params.removal_motion * grid->voxel_size() : 0;
   const double contact_trigger = grid ? params.removal_contact_motion * grid->voxel_size() : 0;
@@ -417,7 +436,24 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
   const std::size_t total_steps =
       traj_steps + static_cast<std::size_t>(std::llround(params.settle_time / h));
   std::vector<mjtNum> jacp(3 * m->nv), jacr(3 * m->nv), x3(3 * m->nv), tau_inv(m->nv);
-  Vector6 grind_wrench_W = Vector6::Zero();  // last step's grinding force and torque (COM), {W}
+  // The controller's side: the flange sensor, the load it estimates from it (force at the flange,
+  // torque about it, {W}; the latest sample, held between samples) and the contact it infers.
+  std::optional<FtSensor> sensor;
+  std::optional<LoadEstimator> estimator;
+  if (has_sensor) {
+    sensor.emplace(params.sensor, params.sensor_seed);
+    estimator.emplace(Payload{m->body_mass[c.tool], vec3_at(m->body_ipos + 3 * c.tool)},
+                      vec3_at(m->opt.gravity), params.sensor.tare_time);
+  }
+  const std::size_t sample_every =
+      std::max<std::size_t>(1, static_cast<std::size_t>(std::llround(params.sensor.period / h)));
+  Wrench load_W, reading_E;
+  const bool from_sensor = params.compensation_source == CompensationSource::kSensor;
+  Vector6 grind_wrench_W = Vector6::Zero();  // the oracle's grinding wrench (COM), {W}
+  Vec3 sensed_normal_W = Vec3::Zero();  // last sensed contact normal (material → tool)
+  double sensed_normal = 0;             // [N] sensed normal force
+  double load_err_sq = 0;
+  std::size_t load_err_n = 0;
 
   auto compare_samples = [&](double t, const Pose& X_WT, double horizon) {
     while (next_sample < n_samples && trajectory.t[next_sample] <= t + horizon) {
@@ -444,10 +480,12 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     const double t = t0 + t_sim;
     const bool log_step =
         n % static_cast<std::size_t>(params.log_decimation) == 0 || n + 1 == total_steps;
-    // Sensors are read only on logged steps (unless a callback may read them at any step): the
-    // flange F/T sensor costs a pass over the bodies' forces. Their values there are unchanged.
+    // MuJoCo's sensors are computed only on the F/T sensor's sample steps and logged steps
+    // (unless a callback may read them at any step): the flange sensor costs a pass over the
+    // bodies' forces. Their values there are unchanged.
+    const bool sample_step = sensor && n % sample_every == 0;
     if (!params.on_step) {
-      if (log_step) m->opt.disableflags &= ~mjDSBL_SENSOR;
+      if (log_step || sample_step) m->opt.disableflags &= ~mjDSBL_SENSOR;
       else m->opt.disableflags |= mjDSBL_SENSOR;
     }
     mj_step1(m, d);  // positions, velocities (and their sensors) of the current state
@@ -515,14 +553,17 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
           rate = rate.scaled(1 / std::max(dp.norm(), 0.5 * grid->voxel_size()));
           feed_C = dp.norm() > 1e-12 ? Vec3(dp.normalized()) : Vec3::Zero();
         }
+        if (step.penetration > res.max_penetration) {
+          res.max_penetration = step.penetration;
+          res.max_penetration_time = t_sim;
+          std::size_t seg = 0;
+          res.max_penetration_tracking =
+              tracking ? (X_WT.translation() - planned_position_at(trajectory, t, seg)).norm() : 0.0;
+        }
         res.removed_flash_volume += step.flash_volume;
         res.removed_body_volume += step.body_volume;
         removed_total += step.volume();
         ++res.removal_steps;
-        if (step.count() > 0)
-          normal_W = R_WC * towards_axis(tool, X_CT, step.centroid_C);
-        else if (step.contact_count > 0)
-          normal_W = R_WC * towards_axis(tool, X_CT, step.contact_centroid_C);
         X_CT_last = X_CT;
         have_removal_pose = true;
         since_removal = 0;
@@ -543,16 +584,30 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     // Reference, admittance correction, clamp, feed-forward → servo set-points.
     Reference r = reference_at(trajectory, dq_samples, t, ref_seg);
     if (fc.enabled) {
+      mj_jacSite(m, d, jacp.data(), jacr.data(), c.tcp);
+      // The sensed contact: the load across the tool axis and the reference's feed direction
+      // (the burr's side cuts: the tangential force runs along the feed, the normal across it).
+      Vec3 v_ref = Vec3::Zero();
+      for (int k = 0; k < 3; ++k)
+        for (int i = 0; i < kNumJoints; ++i) v_ref[k] += jacp[k * m->nv + c.dadr[i]] * r.dq[i];
+      const Vec3 axis = X_WT.linear().col(2);
+      Vec3 f_n = load_W.force - load_W.force.dot(axis) * axis;
+      const Vec3 v_n = v_ref - v_ref.dot(axis) * axis;
+      if (v_n.norm() > 1e-6) f_n -= f_n.dot(v_n.normalized()) * v_n.normalized();
+      sensed_normal = f_n.norm();
+      if (sensed_normal > fc.contact_force) {
+        sensed_normal_W = f_n / sensed_normal;
+        last_contact = t_sim;
+      }
       // Admittance while in contact or shortly after (the tool may bounce off); released once
       // the contact has been lost for release_time.
       if (t_sim - last_contact <= fc.release_time)
-        delta += fc.gain * (fc.target_force - normal_force) * h;
+        delta += fc.gain * (fc.target_force - sensed_normal) * h;
       else
         delta -= delta * std::min(1.0, h / fc.release_time);
       delta = std::clamp(delta, -fc.max_correction, fc.max_correction);
-      if (delta != 0 && normal_W.squaredNorm() > 0) {
+      if (delta != 0 && sensed_normal_W.squaredNorm() > 0) {
         // Δq = Jᵀ(J·Jᵀ + λ²I)⁻¹·[−δ·n; 0]: translate the TCP into the material, keep orientation.
-        mj_jacSite(m, d, jacp.data(), jacr.data(), c.tcp);
         Matrix6 J;
         for (int i = 0; i < kNumJoints; ++i)
           for (int k = 0; k < 3; ++k) {
@@ -560,7 +615,7 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
             J(3 + k, i) = jacr[k * m->nv + c.dadr[i]];
           }
         Vector6 dx = Vector6::Zero();
-        dx.head<3>() = -delta * normal_W;
+        dx.head<3>() = -delta * sensed_normal_W;
         const Matrix6 A = J * J.transpose() + 1e-6 * Matrix6::Identity();
         r.q += J.transpose() * A.ldlt().solve(dx);
       }
@@ -576,16 +631,33 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
       rigid_inverse_dynamics(mff, dff, tau_inv.data());
       for (int i = 0; i < kNumJoints; ++i) tau_ff[i] = tau_inv[c.dadr[i]];
     }
-    if (params.load_compensation && grind_wrench_W.squaredNorm() > 0) {
-      // Deflection compensation: cancel the grinding wrench of the previous step through the
-      // Jacobian at the tool's centre of mass. Not the contact penalty: that is the body's
-      // reaction to the tool pressing into it, which a controller holding the plan would only
-      // push harder against (the penalty is far softer than steel).
+    if (params.load_compensation && from_sensor && estimator->tared()) {
+      // Deflection compensation: cancel the load the sensor shows (force at the flange, torque
+      // about it) through the flange's Jacobian.
+      mj_jacSite(m, d, jacp.data(), jacr.data(), c.force_site);
+      for (int i = 0; i < kNumJoints; ++i)
+        for (int k = 0; k < 3; ++k)
+          tau_ff[i] -= jacp[k * m->nv + c.dadr[i]] * load_W.force[k] +
+                       jacr[k * m->nv + c.dadr[i]] * load_W.torque[k];
+    } else if (params.load_compensation && !from_sensor && grind_wrench_W.squaredNorm() > 0) {
+      // The oracle: the process model's grinding wrench of the previous step through the
+      // Jacobian at the tool's centre of mass. Not the contact penalty: the servos yield to it.
       mj_jacBodyCom(m, d, jacp.data(), jacr.data(), c.tool);
       for (int i = 0; i < kNumJoints; ++i)
         for (int k = 0; k < 3; ++k)
           tau_ff[i] -= jacp[k * m->nv + c.dadr[i]] * grind_wrench_W[k] +
                        jacr[k * m->nv + c.dadr[i]] * grind_wrench_W[3 + k];
+    }
+    if (params.tcp_damping > 0) {
+      // Active damping of the TCP's tracking-error velocity (encoders and the plan):
+      // τ = Jpᵀ·c·(J·dq_ref − J·dq).
+      mj_jacSite(m, d, jacp.data(), nullptr, c.tcp);
+      Vec3 dv = Vec3::Zero();
+      for (int k = 0; k < 3; ++k)
+        for (int i = 0; i < kNumJoints; ++i)
+          dv[k] += jacp[k * m->nv + c.dadr[i]] * (r.dq[i] - d->qvel[c.dadr[i]]);
+      for (int i = 0; i < kNumJoints; ++i)
+        for (int k = 0; k < 3; ++k) tau_ff[i] += jacp[k * m->nv + c.dadr[i]] * params.tcp_damping * dv[k];
     }
     for (int i = 0; i < kNumJoints; ++i) d->ctrl[c.act[i]] = r.q[i] + tau_ff[i] / c.kp[i];
 
@@ -625,10 +697,10 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     F_W = speed * G_W + pen_F_W;
     tau_W = R_WC * (speed * rate.torque + pen_tau_C);
     {
-      // The grinding part alone (rate wrench), about the tool's COM, for the compensation.
+      // The grinding part alone (rate wrench), about the tool's COM, for the oracle compensation.
       const Vec3 f = speed * G_W;
       const Vec3 torque = R_WC * (speed * rate.torque) +
-                     (X_WT.translation() - vec3_at(d->xipos + 3 * c.tool)).cross(f);
+                          (X_WT.translation() - vec3_at(d->xipos + 3 * c.tool)).cross(f);
       grind_wrench_W << f, torque;
     }
     normal_force = speed * rate.normal + penalty;
@@ -646,7 +718,6 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     // feeding, or penetration of the body).
     in_contact = normal_force > 0 || tangential_force > 0;
     if (in_contact) {
-      last_contact = t_sim;
       ++contact_steps;
       force_sum += normal_force;
       const double e = normal_force - fc.target_force;
@@ -655,6 +726,19 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     }
 
     mj_step2(m, d);  // actuation, acceleration, force sensors of this state; integrate
+
+    if (sample_step) {
+      // The flange sensor's sample of this state; the controller's load estimate from it is used
+      // from the next step on.
+      const Mat3 R_WE = mat3_at(d->site_xmat + 9 * c.force_site);
+      reading_E = sensor->sample(
+          {vec3_at(d->sensordata + c.force_adr), vec3_at(d->sensordata + c.torque_adr)});
+      load_W = estimator->update(reading_E, R_WE, t_sim);
+      if (estimator->tared() && in_contact) {
+        load_err_sq += (load_W.force - F_W).squaredNorm();
+        ++load_err_n;
+      }
+    }
 
     if (log_step) {
       ExecutionLog& L = res.log;
@@ -666,12 +750,12 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
       L.normal_force.push_back(normal_force);
       L.tangential_force.push_back(tangential_force);
       L.process_force_W.push_back(F_W);
-      if (c.force_adr >= 0) {
-        const Vec3 f_E = vec3_at(d->sensordata + c.force_adr);
-        L.sensor_force_E.push_back(f_E);
-        L.sensor_force_W.push_back(mat3_at(d->site_xmat + 9 * c.force_site) * f_E);
+      if (sensor) {
+        L.sensor_force_E.push_back(reading_E.force);
+        L.sensor_force_W.push_back(mat3_at(d->site_xmat + 9 * c.force_site) * reading_E.force);
+        L.sensor_torque_E.push_back(reading_E.torque);
+        L.load_force_W.push_back(load_W.force);
       }
-      if (c.torque_adr >= 0) L.sensor_torque_E.push_back(vec3_at(d->sensordata + c.torque_adr));
       L.removed_volume.push_back(removed_total);
       L.correction.push_back(delta);
     }
@@ -683,11 +767,12 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
       ++n;
       break;
     }
-    if (params.max_force > 0 && normal_force > params.max_force) {
+    if (params.max_force > 0 && load_W.force.norm() > params.max_force) {
       res.status = ExecStatus::kForceLimit;
-      res.message = strf("protective stop at t = %.3f s: process force %.0f N above max_force %.0f N "
-                         "(cutting %.0f N, body contact %.0f N: %s)",
-                         t_sim, normal_force, params.max_force, normal_force - penalty, penalty,
+      res.message = strf("protective stop at t = %.3f s: sensed force %.0f N above max_force %.0f N "
+                         "(process normal force %.0f N: cutting %.0f N, body contact %.0f N: %s)",
+                         t_sim, load_W.force.norm(), params.max_force, normal_force,
+                         normal_force - penalty, penalty,
                          penalty > 0.5 * normal_force ? "tool driven into the part"
                                                       : "too much material in one cut");
       ++n;
@@ -721,6 +806,7 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     res.force_mean = force_sum / static_cast<double>(contact_steps);
     res.force_rmse = std::sqrt(force_err_sq / static_cast<double>(contact_steps));
   }
+  if (load_err_n > 0) res.load_estimate_rmse = std::sqrt(load_err_sq / static_cast<double>(load_err_n));
   if (grid && params.analyze_residual) {
     res.residual = analyze_residual(*grid);
     res.has_residual = true;

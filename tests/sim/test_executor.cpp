@@ -4,7 +4,9 @@
 
 #include <cmath>
 #include <cstdio>
+#include <fstream>
 #include <memory>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -474,4 +476,113 @@ TEST(Executor, RigidInverseDynamicsMatchesMjInverse) {
       EXPECT_NEAR(tau[i], a->qfrc_inverse[i], 1e-9 * (1 + std::abs(a->qfrc_inverse[i])))
           << "trial " << trial << " dof " << i;
   }
+}
+
+// The controller's load estimate from the flange sensor, in free air: the wrist turns through
+// large angles (the spindle's weight turns with it in the sensor's frame) and the estimate stays
+// at the sensor's noise and drift, so the payload's weight and the tare are removed at every
+// orientation (a wrong sign or centre of mass would show the tool's weight, ~40 N).
+TEST(Executor, LoadEstimateIsZeroInFreeAirAtAnyOrientation) {
+  const DefaultCell& cell = default_cell();
+  const Vector6 qa = cell.robot.home;
+  Vector6 qb = qa;
+  qb[3] += 1.2;
+  qb[4] -= 0.9;
+  qb[5] -= 1.5;
+  const JointTrajectory tr = quintic(cell, qa, qb, 3.0, 0.01);
+  ExecParams p;
+  p.settle_time = 0.1;
+  p.log_decimation = 2;
+  p.sensor_seed = 9;
+  const ExecutionResult r = execute_trajectory(*cell.model, tr, nullptr, ToolParams{}, ForceParams{}, p);
+  ASSERT_EQ(r.status, ExecStatus::kOk) << r.message;
+  ASSERT_EQ(r.log.load_force_W.size(), r.log.t.size());
+  double worst = 0;
+  Vec3 first_reading = r.log.sensor_force_E.front(), last_reading = r.log.sensor_force_E.back();
+  for (std::size_t k = 0; k < r.log.t.size(); ++k) worst = std::max(worst, r.log.load_force_W[k].norm());
+  // Noise 0.5 N RMS per axis (|F| of three axes: ~0.8 N, 4σ ~2.6 N), drift 0.2 N/√s over 3 s.
+  EXPECT_LT(worst, 4.0);
+  // The reading itself changed by the turning weight (the estimate removed it).
+  EXPECT_GT((first_reading - last_reading).norm(), 10.0);
+  std::printf("free air: load estimate max %.2f N while the reading changed by %.1f N\n", worst,
+              (first_reading - last_reading).norm());
+}
+
+// Cutting the fin, the load the controller estimates from the sensor follows the process
+// model's force on the tool, and deflection compensation fed by it (with the TCP damping that
+// takes back the delay's negative damping) holds the plan as the oracle compensation does.
+TEST(Executor, SensorFedCompensationHoldsThePlanThroughACut) {
+  const DefaultCell& cell = default_cell();
+  FinCase fc = fin_case(cell);
+  ExecParams p;
+  p.settle_time = 0.1;
+  p.log_decimation = 5;
+  MaterialGrid g_oracle = *fc.grid, g_sensor = *fc.grid;
+  const ExecutionResult oracle =
+      execute_trajectory(*cell.model, fc.traj, &g_oracle, fc.tool, ForceParams{}, p);
+  ExecParams ps = p;
+  ps.compensation_source = CompensationSource::kSensor;
+  ps.tcp_damping = 1000;
+  const ExecutionResult sensed =
+      execute_trajectory(*cell.model, fc.traj, &g_sensor, fc.tool, ForceParams{}, ps);
+  ExecParams pn = p;
+  pn.load_compensation = false;
+  MaterialGrid g_none = *fc.grid;
+  const ExecutionResult none =
+      execute_trajectory(*cell.model, fc.traj, &g_none, fc.tool, ForceParams{}, pn);
+  ASSERT_EQ(sensed.status, ExecStatus::kOk) << sensed.message;
+  ASSERT_EQ(oracle.status, ExecStatus::kOk) << oracle.message;
+  EXPECT_GT(sensed.force_mean, 20.0);
+  EXPECT_GT(sensed.load_estimate_rmse, 0.0);
+  EXPECT_LT(sensed.load_estimate_rmse, 0.5 * sensed.force_mean);
+  EXPECT_LT(sensed.tracking_rmse, 0.1 * mm);
+  EXPECT_LT(sensed.tracking_rmse, 0.5 * none.tracking_rmse);
+  EXPECT_NEAR(sensed.removed_flash_volume, oracle.removed_flash_volume,
+              0.1 * oracle.removed_flash_volume);
+  std::printf(
+      "fin cut, compensation from the sensor: tracking RMSE %.3f mm (oracle %.3f, none %.3f), "
+      "load estimate RMSE %.1f N (process force mean %.1f N), removed %.2f mm^3 (oracle %.2f)\n",
+      sensed.tracking_rmse / mm, oracle.tracking_rmse / mm, none.tracking_rmse / mm,
+      sensed.load_estimate_rmse, sensed.force_mean, sensed.removed_flash_volume / (mm * mm * mm),
+      oracle.removed_flash_volume / (mm * mm * mm));
+}
+
+// A cell without the flange sensor cannot run a controller that reads it.
+TEST(Executor, ControllerThatReadsTheSensorNeedsOne) {
+  const DefaultCell& cell = default_cell();
+  std::ifstream in(cell.mjcf);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  std::string xml = ss.str();
+  for (const char* name : {"flange_force", "flange_torque"}) {
+    const std::size_t at = xml.find(std::string("name=\"") + name + "\"");
+    ASSERT_NE(at, std::string::npos);
+    const std::size_t b = xml.rfind('<', at), e = xml.find("/>", at);
+    xml.erase(b, e + 2 - b);
+  }
+  const std::string path = ftest::temp_dir("executor_nosensor") + "/cell.xml";
+  // The meshes are referenced relative to the cell's folder.
+  std::string dir = cell.mjcf.substr(0, cell.mjcf.rfind('/'));
+  std::size_t pos = 0;
+  while ((pos = xml.find("file=\"", pos)) != std::string::npos) {
+    pos += 6;
+    if (xml[pos] != '/') xml.insert(pos, dir + "/");
+  }
+  std::ofstream(path) << xml;
+  const MjModelPtr m = load_mjcf_file(path);
+  JointTrajectory tr;
+  tr.t = {0.0, 0.05};
+  tr.q = {cell.robot.home, cell.robot.home};
+  try {
+    execute_trajectory(*m, tr, nullptr, ToolParams{}, ForceParams{}, ExecParams{});
+    FAIL() << "ran without the flange sensor";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("flange_force"), std::string::npos) << e.what();
+  }
+  // A controller that reads no sensor runs.
+  ExecParams blind;
+  blind.load_compensation = false;
+  blind.max_force = 0;
+  EXPECT_EQ(execute_trajectory(*m, tr, nullptr, ToolParams{}, ForceParams{}, blind).status,
+            ExecStatus::kOk);
 }

@@ -102,6 +102,7 @@ class Execution {
   ExecutionSummary summary_;
   double sim_time_ = 0, wall_ = 0, track_sq_ = 0, track_max_ = 0, track_rot_max_ = 0;
   double contact_ = 0, f_sum_ = 0, f_sq_ = 0, f_max_ = 0, limit_excess_ = 0;
+  double load_est_sq_ = 0, load_est_n_ = 0;  // the controller's load estimate vs the process force
   std::size_t track_n_ = 0, violations_ = 0, clamped_ = 0, steps_ = 0, executed_ = 0, force_stops_ = 0;
   std::string status_ = "ok";
 };

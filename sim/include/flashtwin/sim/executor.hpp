@@ -6,14 +6,22 @@
 //
 // Model names it relies on (the cell's contract, DESIGN.md): hinge joints joint1..joint6, position
 // actuators act1..act6 on them, site `tcp` (tool frame {T}), body `tool` (the forces of the process
-// model go into its xfrc_applied), body `casting` (frame {C}, fixed); optional sensors
-// `flange_force` / `flange_torque` (logged when present).
+// model go into its xfrc_applied), body `casting` (frame {C}, fixed); sensors `flange_force` /
+// `flange_torque` on a site of the tool body (the flange F/T sensor: required when the controller
+// reads it, i.e. with load compensation, force control or a protective stop).
+//
+// The controller sees what a real cell measures: the joint encoders, the plan, and the flange
+// F/T sensor through its model (ft_sensor.hpp: offset, drift, low-pass, noise, sampled every
+// sensor.period) with the load estimated from it (the payload's weight and the tare removed).
+// The process model's own wrench and contact normal are never read by the controller; they are
+// the twin's measurements (force.*, the protective stop's diagnosis).
 //
 // One step of the loop (mj_step1 / set controls and forces / mj_step2, so controls see the
 // current state; MuJoCo's split step integrates with Euler whatever the model's integrator):
 //   1. reference q_ref(t), dq_ref, ddq_ref: cubic Hermite through the samples (q_k, dq_k), held
 //      at the last sample after the end (settle phase);
-//   2. optional admittance: a correction δ [m] along the last contact normal, mapped to joints by
+//   2. optional admittance: a correction δ [m] along the sensed contact normal (the estimated
+//      load's part across the tool axis and the reference's feed direction), mapped to joints by
 //      the damped inverse of the TCP Jacobian (mj_jacSite) with zero rotation;
 //   3. clamp to each joint's range shrunk by `limit_margin` (flagged the first time);
 //   4. ctrl = q_ref + τ_ff / kp: the feed-forward torque τ_ff = inverse dynamics at the reference
@@ -38,6 +46,7 @@
 
 #include "flashtwin/core/robot.hpp"
 #include "flashtwin/core/transform.hpp"
+#include "flashtwin/sim/ft_sensor.hpp"
 #include "flashtwin/sim/process.hpp"
 
 namespace flashtwin::sim {
@@ -52,12 +61,15 @@ struct JointTrajectory {
   std::vector<Pose> planned_tcp_W;
 };
 
-/// Admittance force control along the tool's contact normal.
+/// Admittance force control along the sensed contact normal.
 struct ForceControlParams {
   bool enabled = false;
   /// [N] normal grinding force target; also the reference of ExecutionResult::force_rmse
   /// (used whether or not the control is enabled).
   double target_force = 20.0;
+  /// [N] a sensed normal force above this counts as contact for the controller (the sensor's
+  /// noise and drift stay below it).
+  double contact_force = 5.0;
   double gain = 1e-4;            ///< [m/(N·s)] correction rate per newton of force error
   double max_correction = 3e-3;  ///< [m] bound on |δ| (the servos yield ~1 mm per 40 N)
   /// [s] δ keeps integrating this long after the last contact (the tool may bounce off), then
@@ -65,25 +77,46 @@ struct ForceControlParams {
   double release_time = 0.05;
 };
 
+/// Where deflection compensation takes the load from (ExecParams::compensation_source).
+enum class CompensationSource { kProcessModel, kSensor };
+
+/// "process_model", "sensor".
+const char* to_string(CompensationSource source);
+
 /// Parameters of execute_trajectory (fields named `execution.<field>` in error messages).
 struct ExecParams {
   double timestep = 0;       ///< [s] MuJoCo step; 0 = the model's. Must be ≤ 0.001 (≥ 1 kHz)
   double settle_time = 0.2;  ///< [s] the last sample is held this long after the trajectory
   bool feedforward = true;   ///< inverse-dynamics feed-forward torque at the reference
-  /// Deflection compensation, as robots with a flange F/T sensor do: the grinding wrench of the
-  /// previous step is cancelled through Jᵀ in the feed-forward torque (still bounded by the
-  /// actuators' torque limits), so the servos hold the planned pose under the grinding load.
-  /// The contact penalty (the body pushing back where the tool presses into it) is not
-  /// compensated: the servos yield to it.
+  /// Deflection compensation, as robots with a flange F/T sensor do: the load on the tool is
+  /// cancelled through Jᵀ in the feed-forward torque (still bounded by the actuators' torque
+  /// limits), so the servos hold the planned pose under the grinding load. Which load: see
+  /// compensation_source.
   bool load_compensation = true;
+  /// kSensor: the load the controller estimates from the flange sensor's latest sample (force at
+  /// the flange, torque about it); it cannot tell cutting from the body pushing back, so both
+  /// are compensated. kProcessModel: the process model's own grinding wrench of the previous
+  /// step, without the contact penalty (the servos yield to it) — an oracle no real controller
+  /// has, kept while the sensor-fed controller does not yet hold the quality limits.
+  CompensationSource compensation_source = CompensationSource::kProcessModel;
+  /// [N·s/m] active damping of the TCP's tracking-error velocity, from the encoders and the plan
+  /// (0: off): τ += Jpᵀ·c·(v_ref − v). Compensating a sensed load one sample late makes a stiff
+  /// contact act as negative damping (stiffness × delay: 2·10⁵ N/m × 3 ms ≈ 600 N·s/m), and the
+  /// tool chatters into the wall; this damping takes it back. Explicit at the 1 ms step: a few
+  /// thousand N·s/m destabilise the arm.
+  double tcp_damping = 0;
+  /// The flange F/T sensor the controller reads (`execution.sensor`).
+  FtSensorParams sensor;
+  /// Seed of this motion's sensor noise, offset and drift (the caller derives one per motion).
+  std::uint64_t sensor_seed = 0;
   ForceControlParams force_control;
   int log_decimation = 10;  ///< one log row every this many steps (≥ 1), plus the last step
   /// [rad] references are kept this far inside each joint's range, so the servo's overshoot
   /// stays in range; a reference beyond it is clamped and reported.
   double limit_margin = 0.01;
   double joint_tolerance = 1e-3;  ///< [rad] slack of the joint-range check (violation counting)
-  /// [N] protective stop, as a robot's collision detection does: a process normal force above
-  /// this (the tool driven into the casting) stops the trajectory there. 0: off.
+  /// [N] protective stop, as a robot's collision detection does: a sensed load force (its
+  /// magnitude, from the flange sensor) above this stops the trajectory there. 0: off.
   double max_force = 2000;
   /// [voxels] tool motion (translation + rotation × cutter length) that triggers a removal step.
   double removal_motion = 0.5;
@@ -136,9 +169,11 @@ struct ExecutionLog {
   std::vector<double> normal_force;  ///< [N] F_n + penalty as applied to the tool
   std::vector<double> tangential_force;  ///< [N] F_t as applied to the tool
   std::vector<Vec3> process_force_W;     ///< [N] force the process model puts on the tool, {W}
-  std::vector<Vec3> sensor_force_E;      ///< [N] flange force sensor reading, site frame (optional)
-  std::vector<Vec3> sensor_torque_E;     ///< [N·m] flange torque sensor reading (optional)
+  std::vector<Vec3> sensor_force_E;      ///< [N] flange sensor's force reading, {E} (optional)
+  std::vector<Vec3> sensor_torque_E;     ///< [N·m] its torque reading about the flange (optional)
   std::vector<Vec3> sensor_force_W;      ///< [N] the force reading rotated into {W} (optional)
+  /// [N] the controller's estimate of the load force on the tool, {W} (optional: with a sensor)
+  std::vector<Vec3> load_force_W;
   std::vector<double> removed_volume;    ///< [m^3] cumulative volume removed (flash + body)
   std::vector<double> correction;        ///< [m] admittance correction δ (into the material)
 };
@@ -169,8 +204,16 @@ struct ExecutionResult {
   double force_mean = 0;            ///< [N] mean normal force in contact
   double force_rmse = 0;            ///< [N] RMS of (normal force − target) in contact
   double force_max = 0;             ///< [N] max normal force
+  /// [N] the controller's estimate vs the process model's force on the tool: RMS of the
+  /// difference over the samples in contact after the tare (0: none).
+  double load_estimate_rmse = 0;
   double removed_flash_volume = 0;  ///< [m^3] during this run
   double removed_body_volume = 0;   ///< [m^3] during this run (gouging)
+  double max_penetration = 0;       ///< [m] deepest the tool reached into the nominal body
+  double max_penetration_time = -1; ///< [s] when (−1: never)
+  /// [m] executed vs planned TCP at that time (0 without a plan): a deep penetration with a small
+  /// tracking error was planned, one with a large error is the arm's.
+  double max_penetration_tracking = 0;
   std::size_t removal_steps = 0;    ///< remove_material calls
   bool has_residual = false;        ///< residual is filled (a grid was given, analyze_residual on)
   ResidualReport residual;          ///< analyze_residual of the grid after the run
