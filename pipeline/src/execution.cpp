@@ -120,6 +120,8 @@ void Execution::run_motions(const ScenarioScan& ss, const std::vector<Motion>& m
   const sim::ToolParams tool = sim::tool_params_from(sc_.robot.tool);
   sim::ExecParams ep = sc_.execution.exec;
   ep.analyze_residual = false;  // once, in finish()
+  ep.tcp_offset_T = sc_.faults.tcp_offset_T;    // drills: the world, not what the controller
+  ep.sensor_step_E = sc_.faults.sensor_bias_E;  // is told
   sim::MaterialGrid& grid = *grid_;
   const int setup_index = static_cast<int>(summary_.X_CB.size());
   summary_.X_CB.push_back(ss.setup.spec.X_WC.inverse() * ss.setup.spec.X_WB);

@@ -795,8 +795,14 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     m["faults.part_offset_mm"] = mm;
     m["faults.part_offset_deg"] = deg;
     m["faults.tool_radius_error_mm"] = sc.faults.tool_radius_error * 1e3;
+    m["faults.tcp_offset_mm"] = sc.faults.tcp_offset_T.norm() * 1e3;
+    m["faults.sensor_bias_n"] = sc.faults.sensor_bias_E.force.norm();
+    m["faults.sensor_bias_nm"] = sc.faults.sensor_bias_E.torque.norm();
     spdlog::warn("fault drill: the part stands {:.2f} mm / {:.2f} deg from where it is scanned, the "
-                 "burr's radius is {:+.2f} mm off the plan's", mm, deg, sc.faults.tool_radius_error * 1e3);
+                 "burr's radius is {:+.2f} mm off the plan's, its TCP {:.2f} mm off the controller's, "
+                 "the F/T sensor's zero steps by {:.1f} N / {:.2f} N*m after each tare",
+                 mm, deg, sc.faults.tool_radius_error * 1e3, sc.faults.tcp_offset_T.norm() * 1e3,
+                 sc.faults.sensor_bias_E.force.norm(), sc.faults.sensor_bias_E.torque.norm());
   }
 
   // --- Cell and scan (the simulator).

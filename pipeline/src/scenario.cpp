@@ -502,7 +502,7 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
 
   if (root.has("faults")) {
     const ConfigNode f = root.at("faults");
-    if (!f.is_map()) f.fail("expected a mapping of faults (part_offset, tool_radius_error)");
+    if (!f.is_map()) f.fail("expected a mapping of faults (part_offset, tool_radius_error, tcp_offset, sensor_bias)");
     if (f.has("part_offset")) {
       const ConfigNode o = f.at("part_offset");
       if (!o.is_map()) o.fail("expected {xyz: [x, y, z] (m), rpy: [r, p, y] (rad)}");
@@ -515,6 +515,24 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
       sc.faults.part_offset_C = pose_from_xyz_rpy(xyz, rpy);
     }
     sc.faults.tool_radius_error = f.get_double("tool_radius_error", -0.005, 0.005, 0.0);
+    sc.faults.tcp_offset_T = f.get_vec3("tcp_offset", Vec3::Zero());
+    if (!(sc.faults.tcp_offset_T.norm() <= 0.01))
+      f.at("tcp_offset").fail("expected an offset [x, y, z] within 0.01 m (a drill), got " +
+                              std::to_string(sc.faults.tcp_offset_T.norm()) + " m");
+    if (f.has("sensor_bias")) {
+      const ConfigNode b = f.at("sensor_bias");
+      if (!b.is_map()) b.fail("expected {force: [fx, fy, fz] (N), torque: [tx, ty, tz] (N*m)} in the flange frame");
+      auto& bias = sc.faults.sensor_bias_E;
+      bias.force = b.get_vec3("force", Vec3::Zero());
+      bias.torque = b.get_vec3("torque", Vec3::Zero());
+      const auto& range = sc.execution.exec.sensor;  // the sensor block is read before faults
+      if (!(bias.force.cwiseAbs().maxCoeff() <= range.force_range))
+        b.at("force").fail("expected each axis within the sensor's force_range " +
+                           std::to_string(range.force_range) + " N");
+      if (!(bias.torque.cwiseAbs().maxCoeff() <= range.torque_range))
+        b.at("torque").fail("expected each axis within the sensor's torque_range " +
+                            std::to_string(range.torque_range) + " N*m");
+    }
     // Every burr the job may use (the spindle's, the rack's) stays a ball-ended burr with it.
     std::vector<double> burrs{sc.robot.tool.radius};
     burrs.insert(burrs.end(), sc.tool_rack.begin(), sc.tool_rack.end());

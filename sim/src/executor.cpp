@@ -291,6 +291,9 @@ void check_exec_params(const ExecParams& p) {
   if (!(std::isfinite(p.tcp_damping) && p.tcp_damping >= 0))
     bad("tcp_damping", "a finite damping >= 0 [N*s/m]", p.tcp_damping);
   check_ft_sensor_params(p.sensor);
+  if (!p.tcp_offset_T.allFinite()) bad("tcp_offset_T", "a finite offset [m]", p.tcp_offset_T.norm());
+  if (!(p.sensor_step_E.force.allFinite() && p.sensor_step_E.torque.allFinite()))
+    bad("sensor_step_E", "a finite wrench [N, N*m]", p.sensor_step_E.force.norm());
 }
 
 ExecutionResult execute_trajectory(const std::string& mjcf_path, const JointTrajectory& trajectory,
@@ -491,6 +494,10 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     mj_step1(m, d);  // positions, velocities (and their sensors) of the current state
 
     const Pose X_WT = pose_of(d->site_xpos + 3 * c.tcp, d->site_xmat + 9 * c.tcp);
+    // {Tb}: where the burr's TCP truly stands (the controller's {T} but for a tcp_offset drill);
+    // the process model cuts and pushes there.
+    Pose X_WTb = X_WT;
+    X_WTb.translation() += X_WT.linear() * params.tcp_offset_T;
     const Vector6 q_now = read_q();
     check_limits();
     if (tracking) compare_samples(t, X_WT, 0.5 * h);
@@ -498,7 +505,7 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     // Process model: material removal and the grinding wrench on the tool.
     if (grid) {
       since_removal += h;
-      const Pose X_CT = X_CW * X_WT;
+      const Pose X_CT = X_CW * X_WTb;
       double moved = 1e300;
       if (have_removal_pose)
         moved = (X_CT.translation() - X_CT_last.translation()).norm() +
@@ -700,14 +707,14 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
       // The grinding part alone (rate wrench), about the tool's COM, for the oracle compensation.
       const Vec3 f = speed * G_W;
       const Vec3 torque = R_WC * (speed * rate.torque) +
-                          (X_WT.translation() - vec3_at(d->xipos + 3 * c.tool)).cross(f);
+                          (X_WTb.translation() - vec3_at(d->xipos + 3 * c.tool)).cross(f);
       grind_wrench_W << f, torque;
     }
     normal_force = speed * rate.normal + penalty;
     tangential_force = speed * rate.tangential;
     {
       // xfrc_applied: world-frame force at the body's COM; shift the moment from the TCP.
-      const Vec3 tau_com = tau_W + (X_WT.translation() - vec3_at(d->xipos + 3 * c.tool)).cross(F_W);
+      const Vec3 tau_com = tau_W + (X_WTb.translation() - vec3_at(d->xipos + 3 * c.tool)).cross(F_W);
       mjtNum* xf = d->xfrc_applied + 6 * c.tool;
       for (int k = 0; k < 3; ++k) {
         xf[k] = F_W[k];
@@ -733,7 +740,10 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
       const Mat3 R_WE = mat3_at(d->site_xmat + 9 * c.force_site);
       reading_E = sensor->sample(
           {vec3_at(d->sensordata + c.force_adr), vec3_at(d->sensordata + c.torque_adr)});
+      const bool was_tared = estimator->tared();
       load_W = estimator->update(reading_E, R_WE, t_sim);
+      // A sensor-bias drill: the zero steps right after the tare, unknown to the controller.
+      if (!was_tared && estimator->tared()) sensor->shift_zero(params.sensor_step_E);
       if (estimator->tared() && in_contact) {
         load_err_sq += (load_W.force - F_W).squaredNorm();
         ++load_err_n;
@@ -767,11 +777,11 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
       ++n;
       break;
     }
-    if (params.max_force > 0 && load_W.force.norm() > params.max_force) {
+    if (params.max_force > 0 && estimator && estimator->untared_force_W().norm() > params.max_force) {
       res.status = ExecStatus::kForceLimit;
       res.message = strf("protective stop at t = %.3f s: sensed force %.0f N above max_force %.0f N "
                          "(process normal force %.0f N: cutting %.0f N, body contact %.0f N: %s)",
-                         t_sim, load_W.force.norm(), params.max_force, normal_force,
+                         t_sim, estimator->untared_force_W().norm(), params.max_force, normal_force,
                          normal_force - penalty, penalty,
                          penalty > 0.5 * normal_force ? "tool driven into the part"
                                                       : "too much material in one cut");

@@ -89,12 +89,15 @@ Wrench payload_reading(const Payload& payload, const Mat3& R_WE, const Vec3& g_W
 Wrench LoadEstimator::update(const Wrench& reading_E, const Mat3& R_WE, double t) {
   const Wrench rest = payload_reading(payload_, R_WE, g_W_);
   const Vec3 f = reading_E.force - rest.force, tau = reading_E.torque - rest.torque;
+  untared_W_ = -(R_WE * f);
   if (!tared_) {
-    sum_.force += f;
-    sum_.torque += tau;
-    ++n_;
+    if (f.norm() <= kTareLimit) {
+      sum_.force += f;
+      sum_.torque += tau;
+      ++n_;
+    }
     if (t + 1e-12 < tare_time_) return {};
-    tare_ = {sum_.force / n_, sum_.torque / n_};
+    if (n_ > 0) tare_ = {sum_.force / n_, sum_.torque / n_};
     tared_ = true;
   }
   // The reading changes by minus the load on the tool.

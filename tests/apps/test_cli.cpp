@@ -510,6 +510,8 @@ TEST(Cli, RunRejectsBadScenariosWithExitTwo) {
       // A fault drill that is another placement, or leaves no burr.
       {"run " + sc + " -o " + tmp + "/o15 --set faults.part_offset.xyz=[0,0.1,0]", "faults.part_offset"},
       {"run " + sc + " -o " + tmp + "/o16 --set faults.tool_radius_error=-0.0028", "faults.tool_radius_error"},
+      {"run " + sc + " -o " + tmp + "/o18 --set faults.tcp_offset=[0,0,0.05]", "faults.tcp_offset"},
+      {"run " + sc + " -o " + tmp + "/o19 --set faults.sensor_bias.force=[0,3000,0]", "faults.sensor_bias.force"},
       // A second setup for a part the fixture holds one way up.
       {"run " + sc + " -o " + tmp + "/o17 --set casting.placement.turn_over=true", "turn_over"},
   };
@@ -519,7 +521,7 @@ TEST(Cli, RunRejectsBadScenariosWithExitTwo) {
     EXPECT_NE(r.err.find(c.needle), std::string::npos) << c.args << "\n" << r.err;
     EXPECT_EQ(lines(r.err), 1) << c.args << "\n" << r.err;
   }
-  for (const char* o : {"/o1", "/o2", "/o3", "/o4", "/o5", "/o8", "/o9", "/o10", "/o11", "/o12", "/o13", "/o15", "/o16", "/o17"})
+  for (const char* o : {"/o1", "/o2", "/o3", "/o4", "/o5", "/o8", "/o9", "/o10", "/o11", "/o12", "/o13", "/o15", "/o16", "/o17", "/o18", "/o19"})
     EXPECT_FALSE(std::filesystem::exists(tmp + o + "/metrics.json")) << o;
 }
 

@@ -586,3 +586,76 @@ TEST(Executor, ControllerThatReadsTheSensorNeedsOne) {
   EXPECT_EQ(execute_trajectory(*m, tr, nullptr, ToolParams{}, ForceParams{}, blind).status,
             ExecStatus::kOk);
 }
+
+// Fault drill: the burr stands 3.5 mm further along its axis than the controller's tool data
+// says (a burr seated out of its collet). The fin case's body lies 3 mm below the tip: the
+// controller tracks its own TCP as before, the process model cuts with the burr where it stands,
+// 0.5 mm into the body, and measures that gouge.
+TEST(Executor, ABurrOffItsToolDataCutsWhereItStands) {
+  const DefaultCell& cell = default_cell();
+  FinCase fc = fin_case(cell);
+  ExecParams p;
+  p.settle_time = 0.1;
+  p.log_decimation = 5;
+  MaterialGrid g_ok = *fc.grid, g_off = *fc.grid;
+  const ExecutionResult ok = execute_trajectory(*cell.model, fc.traj, &g_ok, fc.tool, ForceParams{}, p);
+  ExecParams pf = p;
+  pf.tcp_offset_T = Vec3(0, 0, -3.5 * mm * fc.tool.axis_sign);  // towards the tip, out of the tool
+  const ExecutionResult off = execute_trajectory(*cell.model, fc.traj, &g_off, fc.tool, ForceParams{}, pf);
+  ASSERT_EQ(ok.status, ExecStatus::kOk) << ok.message;
+  ASSERT_EQ(off.status, ExecStatus::kOk) << off.message;
+  EXPECT_EQ(ok.removed_body_volume, 0.0);
+  EXPECT_EQ(ok.max_penetration, 0.0);
+  EXPECT_GT(off.removed_body_volume, 0.0);
+  // 0.5 mm into the body at most (plus the voxels' quantisation, 0.1 mm); the servos yield some
+  // of it to the contact's push (the controller's TCP is pushed off its plan by millimetres).
+  EXPECT_GT(off.max_penetration, 0.2 * mm);
+  EXPECT_LT(off.max_penetration, 0.8 * mm);
+  EXPECT_GT(off.tracking_rmse, 10 * ok.tracking_rmse);
+  // More of the fin goes: the burr's ball reaches 3.5 mm lower through it.
+  EXPECT_GT(off.removed_flash_volume, 1.2 * ok.removed_flash_volume);
+  std::printf("burr 3.5 mm off its tool data: gouge %.3f mm (%.3f mm^3), flash removed %.2f mm^3 "
+              "(%.2f on plan), tracking RMSE of the controller's TCP %.3f mm (%.3f)\n",
+              off.max_penetration / mm, off.removed_body_volume / (mm * mm * mm),
+              off.removed_flash_volume / (mm * mm * mm), ok.removed_flash_volume / (mm * mm * mm),
+              off.tracking_rmse / mm, ok.tracking_rmse / mm);
+}
+
+// Fault drill: the sensor's zero steps by 60 N right after the tare. The controller reads it as
+// load: with compensation from the sensor it pushes the tool against that phantom load, off its
+// plan in free air by about 60 N over the arm's stiffness at the TCP; with the oracle
+// compensation (which does not read the sensor) the tool stays on the plan.
+TEST(Executor, ASensorZeroStepAfterTheTareIsReadAsLoad) {
+  const DefaultCell& cell = default_cell();
+  const Vector6 qa = cell.robot.home;
+  Vector6 qb = qa;
+  qb[0] += 0.05;
+  const JointTrajectory tr = quintic(cell, qa, qb, 2.0, 0.01);
+  ExecParams p;
+  p.settle_time = 0.1;
+  p.log_decimation = 2;
+  p.sensor_seed = 3;
+  p.compensation_source = CompensationSource::kSensor;
+  p.tcp_damping = 1000;
+  const ExecutionResult clean = execute_trajectory(*cell.model, tr, nullptr, ToolParams{}, ForceParams{}, p);
+  ExecParams pf = p;
+  pf.sensor_step_E.force = Vec3(0, 60, 0);
+  const ExecutionResult biased = execute_trajectory(*cell.model, tr, nullptr, ToolParams{}, ForceParams{}, pf);
+  ExecParams po = pf;
+  po.compensation_source = CompensationSource::kProcessModel;
+  po.tcp_damping = 0;
+  const ExecutionResult oracle = execute_trajectory(*cell.model, tr, nullptr, ToolParams{}, ForceParams{}, po);
+  for (const auto* r : {&clean, &biased, &oracle}) ASSERT_EQ(r->status, ExecStatus::kOk) << r->message;
+  // After the tare and the filter's settling, the estimate shows the step (±4 N of noise and
+  // drift), in free air.
+  double worst_dev = 0;
+  for (std::size_t k = 0; k < biased.log.t.size(); ++k)
+    if (biased.log.t[k] > 0.1) worst_dev = std::max(worst_dev, std::abs(biased.log.load_force_W[k].norm() - 60.0));
+  EXPECT_LT(worst_dev, 4.0);
+  EXPECT_LT(clean.tracking_max, 0.1 * mm);
+  EXPECT_GT(biased.tracking_max, 0.5 * mm);
+  EXPECT_LT(oracle.tracking_max, 0.1 * mm);
+  std::printf("sensor zero step of 60 N: tracking max %.3f mm with compensation from the sensor "
+              "(%.3f mm without the step, %.3f mm with the oracle compensation)\n",
+              biased.tracking_max / mm, clean.tracking_max / mm, oracle.tracking_max / mm);
+}

@@ -167,3 +167,30 @@ TEST(LoadEstimator, RemovesThePayloadAtAnyOrientationAndTheTare) {
   EXPECT_LT((up.force - Vec3(0, 0, 4 * 9.81)).norm(), 1e-12);
   EXPECT_LT((up.torque - Vec3(0, -0.01 * 4 * 9.81, 0)).norm(), 1e-12);
 }
+
+TEST(LoadEstimator, ATareTakenInContactLeavesTheLoadedReadingsOutAndTheStopSeesThem) {
+  // A path that starts with the tool already pressed against the part (a misplaced plan): the
+  // readings while taring are 300 N off the payload's. They stay out of the tare (which is then
+  // zero), so the load estimate and the untared force a protective stop compares both show the
+  // 300 N instead of a tare hiding it.
+  const Payload payload{3.0, Vec3(0, 0, 0.1)};
+  const Vec3 g(0, 0, -9.81);
+  const Mat3 R = Eigen::AngleAxisd(0.7, Vec3(1, 2, 0).normalized()).toRotationMatrix();
+  const Vec3 F_W(0, 300, 0);  // the part pushing on the tool, {W}
+  const Wrench rest = payload_reading(payload, R, g);
+  const Wrench pressed{rest.force - R.transpose() * F_W, rest.torque};
+  LoadEstimator est(payload, g, 0.02);
+  for (int k = 0; k <= 20; ++k) est.update(pressed, R, 1e-3 * k);
+  ASSERT_TRUE(est.tared());
+  const Wrench got = est.update(pressed, R, 0.021);
+  EXPECT_LT((got.force - F_W).norm(), 1e-9);
+  EXPECT_LT((est.untared_force_W() - F_W).norm(), 1e-9);
+
+  // A small zero offset (within the limit) is tared away as before; the untared force keeps it.
+  const Vec3 offset_E(4, -3, 2);
+  LoadEstimator free_air(payload, g, 0.02);
+  for (int k = 0; k <= 20; ++k) free_air.update({rest.force + offset_E, rest.torque}, R, 1e-3 * k);
+  const Wrench loaded{rest.force + offset_E - R.transpose() * F_W, rest.torque};
+  EXPECT_LT((free_air.update(loaded, R, 0.03).force - F_W).norm(), 1e-9);
+  EXPECT_LT((free_air.untared_force_W() - (F_W - R * offset_E)).norm(), 1e-9);
+}

@@ -85,8 +85,17 @@ struct Faults {
   /// `tool_radius_error` [m]: the burr on the spindle less the one the plan was made for
   /// (worn: negative; a larger burr mounted by mistake: positive).
   double tool_radius_error = 0;
+  /// `tcp_offset: [x, y, z]` [m] in {T}: the burr's TCP stands this far from where the
+  /// controller's tool data puts it (a tool calibrated wrong, a burr seated deeper in its collet).
+  Vec3 tcp_offset_T = Vec3::Zero();
+  /// `sensor_bias: {force: [N], torque: [N*m]}` in the flange frame {E}: a step in the F/T
+  /// sensor's zero right after each path's tare (a cable pulled, a thermal shock), which the
+  /// controller reads as load.
+  sim::Wrench sensor_bias_E;
   bool any() const {
-    return !part_offset_C.isApprox(Pose::Identity(), 0) || tool_radius_error != 0;
+    return !part_offset_C.isApprox(Pose::Identity(), 0) || tool_radius_error != 0 ||
+           tcp_offset_T != Vec3::Zero() || sensor_bias_E.force != Vec3::Zero() ||
+           sensor_bias_E.torque != Vec3::Zero();
   }
 };
 

@@ -109,14 +109,21 @@ struct ExecParams {
   FtSensorParams sensor;
   /// Seed of this motion's sensor noise, offset and drift (the caller derives one per motion).
   std::uint64_t sensor_seed = 0;
+  /// Fault drills (`faults:`), which the controller is not told. tcp_offset_T [m]: the burr
+  /// stands this far from the TCP the controller's tool data gives, in {T} (a tool calibrated
+  /// wrong, a burr seated deeper); the process model cuts with the burr where it stands.
+  /// sensor_step_E: a step in the F/T sensor's zero right after each motion's tare ({E}).
+  Vec3 tcp_offset_T = Vec3::Zero();
+  Wrench sensor_step_E;
   ForceControlParams force_control;
   int log_decimation = 10;  ///< one log row every this many steps (≥ 1), plus the last step
   /// [rad] references are kept this far inside each joint's range, so the servo's overshoot
   /// stays in range; a reference beyond it is clamped and reported.
   double limit_margin = 0.01;
   double joint_tolerance = 1e-3;  ///< [rad] slack of the joint-range check (violation counting)
-  /// [N] protective stop, as a robot's collision detection does: a sensed load force (its
-  /// magnitude, from the flange sensor) above this stops the trajectory there. 0: off.
+  /// [N] protective stop, as a robot's collision detection does: a sensed force above this (the
+  /// flange sensor's latest reading less the payload, untared, its magnitude) stops the
+  /// trajectory there. 0: off.
   double max_force = 2000;
   /// [voxels] tool motion (translation + rotation × cutter length) that triggers a removal step.
   double removal_motion = 0.5;
@@ -152,7 +159,7 @@ enum class ExecStatus {
   kOk,                ///< ran to the end, no reference clamped
   kReferenceClamped,  ///< ran to the end; some reference left its joint's range and was clamped
   kUnstable,          ///< MuJoCo reported a bad state (NaN/huge acceleration); stopped early
-  kForceLimit,        ///< protective stop: the process force exceeded ExecParams::max_force
+  kForceLimit,        ///< protective stop: the sensed force exceeded ExecParams::max_force
 };
 
 /// "ok", "reference_clamped", "unstable", "force_limit".

@@ -68,6 +68,12 @@ class FtSensor {
   FtSensor(const FtSensorParams& params, std::uint64_t seed);
   /// One sample of the true wrench w_E at the flange ({E}, about its origin) → the reading.
   Wrench sample(const Wrench& true_E);
+  /// A step in the zero offset from the next sample on (a fault: a cable pulled, a thermal
+  /// shock); filtered like any change of the input.
+  void shift_zero(const Wrench& step_E) {
+    offset_.force += step_E.force;
+    offset_.torque += step_E.torque;
+  }
   const FtSensorParams& params() const { return params_; }
 
  private:
@@ -94,15 +100,22 @@ class LoadEstimator {
   LoadEstimator(const Payload& payload, const Vec3& g_W, double tare_time)
       : payload_(payload), g_W_(g_W), tare_time_(tare_time) {}
   /// Feeds a reading taken at motion time t [s] with the flange at R_WE; returns the load on the
-  /// tool (force, torque about the flange) in {W}. Zero while taring (t < tare_time).
+  /// tool (force, torque about the flange) in {W}. Zero while taring (t < tare_time). A reading
+  /// more than kTareLimit off the payload's is a loaded sensor (the tool touching something) and
+  /// is left out of the tare; with no reading left the tare is zero.
   Wrench update(const Wrench& reading_E, const Mat3& R_WE, double t);
   bool tared() const { return tared_; }
+  /// The latest reading less the payload, untared, {W}: what a protective stop compares with
+  /// its limit (a tare taken in contact cannot hide a collision).
+  const Vec3& untared_force_W() const { return untared_W_; }
+  static constexpr double kTareLimit = 25;  ///< [N] (5 σ of the default zero offset)
 
  private:
   Payload payload_;
   Vec3 g_W_;
   double tare_time_;
   Wrench sum_, tare_;
+  Vec3 untared_W_ = Vec3::Zero();
   int n_ = 0;
   bool tared_ = false;
 };
