@@ -183,6 +183,11 @@ void Execution::run_motions(const ScenarioScan& ss, const std::vector<Motion>& m
       f_sq_ += r.force_rmse * r.force_rmse * r.contact_time;
     }
     f_max_ = std::max(f_max_, r.force_max);
+    out.untracked_gouge_max = std::max(out.untracked_gouge_max, r.untracked_penetration_max);
+    if (r.untracked_penetration_max > sc_.quality.max_gouge_mm * 1e-3)
+      spdlog::warn("execution: path {}: the cutter went {:.2f} mm into steel the voxels do not "
+                   "track (away from the flash) at {:.2f} s",
+                   k, r.untracked_penetration_max * 1e3, r.untracked_penetration_time);
     if (r.load_estimate_rmse > 0) {
       load_est_sq_ += r.load_estimate_rmse * r.load_estimate_rmse * r.contact_time;
       load_est_n_ += r.contact_time;
@@ -225,7 +230,10 @@ ExecutionSummary Execution::finish(json& m) {
   m["removal.flash_removed_fraction"] = res.flash_removed_fraction;
   m["removal.residual_flash_max_mm"] = res.residual_flash_max * 1e3;
   m["removal.loose_flash_mm3"] = res.loose_flash_volume * 1e9;
-  m["removal.gouge_max_mm"] = res.gouge_max_depth * 1e3;
+  // The voxels' gouge near the fins, or the exact CAD check's where they track no steel.
+  m["removal.gouge_max_mm"] = std::max(res.gouge_max_depth, out.untracked_gouge_max) * 1e3;
+  m["removal.gouge_voxel_max_mm"] = res.gouge_max_depth * 1e3;
+  m["removal.gouge_untracked_max_mm"] = out.untracked_gouge_max * 1e3;
   m["removal.gouge_volume_mm3"] = res.gouge_volume * 1e9;
   m["removal.voxel_size_mm"] = grid.voxel_size() * 1e3;
   m["force.target_n"] = out.target_force;

@@ -201,6 +201,57 @@ Vec3 inward_direction(const MeshBvh& nominal, const Vec3& p_C, const Vec3& fallb
   return d.norm() > 1e-9 ? Vec3(d.normalized()) : fallback;
 }
 
+// The cutter's deepest penetration of the nominal (CAD) body where the voxel grid does not track
+// the body (no BODY or GOUGE voxel 1.5 voxels below the closest surface point): away from the
+// fins and their band the voxels hold no steel, and only this check sees the tool in it. Where
+// the grid does track it, the voxels hold the body's first body_band only: the part of a deeper
+// penetration beyond that band counts here (`beyond`: the band the voxels already push with). The
+// cutter is the set of points within its radius of the axis from u0 (the ball tip's centre, or
+// the flat tip) to its length, sampled every kSpacing; closest points beyond the cutting length
+// (the shank) or below a flat tip are left out. A sample's side of the surface is taken from the
+// closest triangle's normal (exact on faces and convex edges). Found within kReach of the
+// cutter's surface only: an axis deeper than that in steel went through a contact first.
+struct CadContact {
+  double depth = 0;            // [m] below the CAD surface
+  double beyond = 0;           // [m] of that the voxels account for (0 where they track none)
+  Vec3 q_C = Vec3::Zero();     // closest surface point
+  Vec3 n_C = Vec3::Zero();     // direction of the push on the tool (out of the body)
+};
+
+CadContact untracked_contact(const ToolParams& tool, const MaterialGrid& grid, const Pose& X_CT) {
+  constexpr double kSpacing = 0.5e-3, kReach = 2e-3;
+  const MeshBvh& bvh = grid.nominal();
+  const TriangleMesh& mesh = bvh.mesh();
+  const Vec3 a = (tool.axis_sign * X_CT.linear().col(2)).normalized();
+  const Vec3 tip = X_CT.translation();
+  const double r = tool.radius, u0 = tool.end == ToolEnd::kBall ? r : 0.0;
+  const auto n_samples = static_cast<int>(std::ceil((tool.length - u0) / kSpacing)) + 1;
+  CadContact best;
+  int hint = -1;
+  for (int i = 0; i < n_samples; ++i) {
+    const double u = n_samples > 1 ? u0 + (tool.length - u0) * i / (n_samples - 1) : u0;
+    const Vec3 x = tip + u * a;
+    const ClosestPoint cp = bvh.closest(x, r + kReach, hint);
+    if (cp.triangle < 0) continue;
+    hint = cp.triangle;
+    const double u_q = (cp.point - tip).dot(a);
+    if (u_q < -1e-9 || u_q > tool.length) continue;
+    const Eigen::Vector3i& tri = mesh.triangles[static_cast<std::size_t>(cp.triangle)];
+    const Vec3 nf = (mesh.vertices[tri[1]] - mesh.vertices[tri[0]])
+                        .cross(mesh.vertices[tri[2]] - mesh.vertices[tri[0]])
+                        .normalized();
+    const bool inside = (x - cp.point).dot(nf) < 0;
+    const double depth = inside ? r + cp.distance : r - cp.distance;
+    const VoxelLabel below = grid.label_at(cp.point - 1.5 * grid.voxel_size() * nf);
+    const double band =
+        below == VoxelLabel::kBody || below == VoxelLabel::kGouge ? grid.params().body_band : 0.0;
+    if (depth - band <= best.depth - best.beyond) continue;
+    const Vec3 d = inside ? Vec3(cp.point - x) : Vec3(x - cp.point);
+    best = {depth, band, cp.point, d.norm() > 1e-12 ? Vec3(d.normalized()) : nf};
+  }
+  return best;
+}
+
 // The rate (grinding) part of a process wrench in {C}, torque about the TCP.
 struct RateWrench {
   Vec3 force = Vec3::Zero(), torque = Vec3::Zero();
@@ -274,6 +325,8 @@ void check_exec_params(const ExecParams& p) {
     bad("removal_contact_motion", "a finite number of voxels >= 0", p.removal_contact_motion);
   if (!(std::isfinite(p.removal_max_interval) && p.removal_max_interval > 0))
     bad("removal_max_interval", "a finite time > 0 [s]", p.removal_max_interval);
+  if (!(std::isfinite(p.cad_check_motion) && p.cad_check_motion >= 0))
+    bad("cad_check_motion", "a finite distance >= 0 [m]", p.cad_check_motion);
   if (!(std::isfinite(p.max_force) && p.max_force >= 0)) bad("max_force", "a finite force >= 0 [N] (0: off)", p.max_force);
   if (!(std::isfinite(p.rate_window) && p.rate_window >= 0.5))
     bad("rate_window", "a finite number of voxels >= 0.5", p.rate_window);
@@ -419,6 +472,12 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
   Vec3 pen_F_C = Vec3::Zero(), pen_tau_C = Vec3::Zero();
   double penalty = 0;
   PenaltyContact contact;  // the last removal step's penetration of the body
+  // The last exact CAD check's penetration where the grid tracks no body, and its push.
+  PenaltyContact cad;
+  Pose X_CT_cad = Pose::Identity();
+  bool have_cad_pose = false;
+  double since_cad = 0, cad_penalty = 0, cad_band = 0;
+  Vec3 cad_F_C = Vec3::Zero(), cad_tau_C = Vec3::Zero();
   // The wrench applied to the tool: {W}, torque about the TCP.
   Vec3 F_W = Vec3::Zero(), tau_W = Vec3::Zero();
   double normal_force = 0, tangential_force = 0;
@@ -588,6 +647,42 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
       }
     }
 
+    if (grid && params.cad_check_motion > 0) {
+      // Steel the voxels do not track: the exact CAD check, then its penalty follows the tool.
+      since_cad += h;
+      const Pose X_CT = X_CW * X_WTb;
+      const double moved =
+          have_cad_pose ? (X_CT.translation() - X_CT_cad.translation()).norm() +
+                              rotation_distance(X_CT.linear(), X_CT_cad.linear()) * tool.length
+                        : 1e300;
+      if (moved >= params.cad_check_motion || since_cad >= params.removal_max_interval - 1e-12) {
+        const CadContact cc = untracked_contact(tool, *grid, X_CT);
+        cad = cc.depth > cc.beyond ? PenaltyContact{cc.depth - cc.beyond, cc.n_C, -cc.n_C,
+                                                    X_CT.translation(), cc.q_C - X_CT.translation()}
+                                   : PenaltyContact{};
+        cad_band = cc.beyond;
+        X_CT_cad = X_CT;
+        have_cad_pose = true;
+        since_cad = 0;
+      }
+      cad_penalty = 0;
+      cad_F_C.setZero();
+      cad_tau_C.setZero();
+      const double depth = cad.depth > 0 ? cad.depth_at(X_CT.translation()) : 0.0;
+      if (depth > 0) {
+        double speed_in = 0;
+        if (force.contact_damping > 0)
+          speed_in = std::max(0.0, -(X_CW.linear() * tcp_velocity_W()).dot(cad.n_C));
+        cad_penalty = penalty_force(force, depth, speed_in);
+        cad_F_C = cad_penalty * cad.n_C;
+        cad_tau_C = cad.arm_C.cross(cad_F_C);
+        if (depth + cad_band > res.untracked_penetration_max) {
+          res.untracked_penetration_max = depth + cad_band;
+          res.untracked_penetration_time = t_sim;
+        }
+      }
+    }
+
     // Reference, admittance correction, clamp, feed-forward → servo set-points.
     Reference r = reference_at(trajectory, dq_samples, t, ref_seg);
     if (fc.enabled) {
@@ -675,7 +770,7 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     // s⁺ = (d·v + h·d·a) / (1 − h·dᵀΛ⁻¹G). Applied explicitly, a removal rate taken over whole
     // voxels acts like a damper far stiffer than the tool's mass allows over one step and throws
     // the tool back and forth (stick-slip chatter).
-    const Vec3 G_W = R_WC * rate.force, pen_F_W = R_WC * pen_F_C;
+    const Vec3 G_W = R_WC * rate.force, pen_F_W = R_WC * (pen_F_C + cad_F_C);
     double speed = 1;  // explicit: `rate` is the wrench itself
     if (params.implicit_rate_force) {
       speed = 0;
@@ -702,7 +797,7 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
       }
     }
     F_W = speed * G_W + pen_F_W;
-    tau_W = R_WC * (speed * rate.torque + pen_tau_C);
+    tau_W = R_WC * (speed * rate.torque + pen_tau_C + cad_tau_C);
     {
       // The grinding part alone (rate wrench), about the tool's COM, for the oracle compensation.
       const Vec3 f = speed * G_W;
@@ -710,7 +805,7 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
                           (X_WTb.translation() - vec3_at(d->xipos + 3 * c.tool)).cross(f);
       grind_wrench_W << f, torque;
     }
-    normal_force = speed * rate.normal + penalty;
+    normal_force = speed * rate.normal + penalty + cad_penalty;
     tangential_force = speed * rate.tangential;
     {
       // xfrc_applied: world-frame force at the body's COM; shift the moment from the TCP.
@@ -782,8 +877,8 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
       res.message = strf("protective stop at t = %.3f s: sensed force %.0f N above max_force %.0f N "
                          "(process normal force %.0f N: cutting %.0f N, body contact %.0f N: %s)",
                          t_sim, estimator->untared_force_W().norm(), params.max_force, normal_force,
-                         normal_force - penalty, penalty,
-                         penalty > 0.5 * normal_force ? "tool driven into the part"
+                         normal_force - penalty - cad_penalty, penalty + cad_penalty,
+                         penalty + cad_penalty > 0.5 * normal_force ? "tool driven into the part"
                                                       : "too much material in one cut");
       ++n;
       break;

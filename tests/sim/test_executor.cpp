@@ -508,6 +508,53 @@ TEST(Executor, LoadEstimateIsZeroInFreeAirAtAnyOrientation) {
               (first_reading - last_reading).norm());
 }
 
+// Steel far from any fin, where the voxel grid tracks no body: the fin case's motion with the
+// casting's top 0.3 mm above the burr's tip and the only fin 40 mm away. The exact CAD check
+// measures the cut and the body pushes back (k = 2e5 N/m: ~60 N at 0.3 mm); without it the tool
+// would pass through the steel unseen. 8 mm deep, the contact force trips the protective stop.
+TEST(Executor, AGougeFarFromAnyFinIsMeasuredAndPushesBack) {
+  const DefaultCell& cell = default_cell();
+  const FinCase fc = fin_case(cell);
+  // The motion over a casting whose top stands `top` above the tip's path ({F}: z up the axis).
+  std::size_t body_removed = 0;
+  auto run = [&](double top, const ExecParams& params) {
+    const TriangleMesh body = box_mesh(Vec3(-25 * mm, -25 * mm, -10 * mm), Vec3(25 * mm, 25 * mm, top))
+                                  .transformed(fc.X_CF);
+    const TriangleMesh fin = box_mesh(Vec3(40 * mm, -5 * mm, top - 1 * mm), Vec3(40.3 * mm, 5 * mm, top + 3 * mm))
+                                 .transformed(fc.X_CF);
+    MaterialGrid grid(body, std::vector<TriangleMesh>{fin});
+    const ExecutionResult res = execute_trajectory(*cell.model, fc.traj, &grid, fc.tool, ForceParams{}, params);
+    body_removed = grid.body_voxels_removed();
+    return res;
+  };
+  ExecParams p;
+  p.settle_time = 0.1;
+  p.log_decimation = 5;
+  const ExecutionResult r = run(0.3 * mm, p);
+  ASSERT_EQ(r.status, ExecStatus::kOk) << r.message;
+  EXPECT_EQ(body_removed, 0u);  // the voxels never saw it
+  EXPECT_GT(r.untracked_penetration_max, 0.15 * mm);
+  EXPECT_LT(r.untracked_penetration_max, 0.35 * mm);
+  EXPECT_GT(r.force_max, 20.0);
+  EXPECT_LT(r.force_max, 80.0);
+
+  ExecParams blind = p;
+  blind.cad_check_motion = 0;
+  const ExecutionResult b = run(0.3 * mm, blind);
+  EXPECT_EQ(b.untracked_penetration_max, 0.0);
+  EXPECT_EQ(b.force_max, 0.0);
+
+  ExecParams guarded = p;
+  guarded.max_force = 500;
+  const ExecutionResult d = run(8 * mm, guarded);
+  EXPECT_EQ(d.status, ExecStatus::kForceLimit) << d.message;
+  EXPECT_NE(d.message.find("tool driven into the part"), std::string::npos) << d.message;
+  std::printf("steel away from the fins: 0.3 mm below the tip gouged %.3f mm at up to %.0f N "
+              "(unchecked: %.3f mm, %.0f N); 8 mm deep: %s\n",
+              r.untracked_penetration_max / mm, r.force_max, b.untracked_penetration_max / mm,
+              b.force_max, d.message.c_str());
+}
+
 // Cutting the fin, the load the controller estimates from the sensor follows the process
 // model's force on the tool, and deflection compensation fed by it (with the TCP damping that
 // takes back the delay's negative damping) holds the plan as the oracle compensation does.

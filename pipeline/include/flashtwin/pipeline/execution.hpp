@@ -56,6 +56,9 @@ struct ExecutionSummary {
   std::vector<int> setup;                 ///< the setup each row belongs to (0, 1)
   std::vector<Pose> X_CB;                 ///< per setup: the robot base in {C} (true placement)
   double target_force = 0;                ///< [N]
+  /// [m] deepest the cutter went into steel the voxel grid does not track (away from the fins;
+  /// sim::ExecutionResult::untracked_penetration_max over all paths): part of the gouge.
+  double untracked_gouge_max = 0;
   sim::ResidualReport residual;
   /// The material after grinding (residual and gouge maps are read from it; null when
   /// execution did not run).

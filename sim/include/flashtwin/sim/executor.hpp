@@ -37,6 +37,8 @@
 //      penalty (a stiff spring on the tool's penetration of the nominal body) follows the tool at
 //      every step in between: the deepest body point found by the last removal step moves with
 //      the tool, its depth measured against the tangent plane of the nominal surface there.
+//      Where the grid tracks no body (away from the fins, below its band), an exact check of the
+//      cutter against the CAD body every cad_check_motion gives the same kind of penalty contact.
 #include <mujoco/mujoco.h>
 
 #include <cstddef>
@@ -133,6 +135,13 @@ struct ExecParams {
   /// up to 3.5× deeper than with a removal step every 1 kHz step.
   double removal_contact_motion = 0.1;
   double removal_max_interval = 0.01;  ///< [s] a removal step at least this often
+  /// [m] tool motion (translation + rotation × cutter length) between exact checks of the cutter
+  /// against the nominal (CAD) body where the voxel grid does not track it (away from the fins,
+  /// and deeper than its body_band near them): such a contact pushes back with the same penalty
+  /// spring (beyond the band: for the depth past it) and counts as a gouge
+  /// (ExecutionResult::untracked_penetration_max); in between the contact follows the tool as
+  /// the voxel penalty does. 0: off (then steel the voxels do not hold is air).
+  double cad_check_motion = 0.25e-3;
   /// Apply the grinding (rate) part of the process force as a resistance to the feed, solved
   /// implicitly: the wrench per unit feed speed (impulse of the recent removal intervals / their
   /// net progress, see rate_window) times the TCP's speed along that travel at the end of each
@@ -221,6 +230,11 @@ struct ExecutionResult {
   /// [m] executed vs planned TCP at that time (0 without a plan): a deep penetration with a small
   /// tracking error was planned, one with a large error is the arm's.
   double max_penetration_tracking = 0;
+  /// [m] deepest the cutter reached into the nominal body where the voxel grid does not track it
+  /// or deeper than its band (cad_check_motion), full depth below the CAD surface: a gouge the
+  /// voxels cannot see (0: none).
+  double untracked_penetration_max = 0;
+  double untracked_penetration_time = -1;  ///< [s] when (−1: never)
   std::size_t removal_steps = 0;    ///< remove_material calls
   bool has_residual = false;        ///< residual is filled (a grid was given, analyze_residual on)
   ResidualReport residual;          ///< analyze_residual of the grid after the run
