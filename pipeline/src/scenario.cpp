@@ -452,6 +452,7 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     e.exec.feedforward = ex.get_bool("feedforward", e.exec.feedforward);
     e.exec.load_compensation = ex.get_bool("load_compensation", e.exec.load_compensation);
     e.exec.tcp_damping = ex.get_double("tcp_damping", 0, 1e6, e.exec.tcp_damping);
+    e.exec.cad_check_motion = ex.get_double("cad_check_motion", 0, 0.01, e.exec.cad_check_motion);
     if (ex.has("compensation")) {
       const std::string src = ex.get_string("compensation", "");
       if (src == "sensor") e.exec.compensation_source = sim::CompensationSource::kSensor;

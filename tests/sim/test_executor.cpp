@@ -530,6 +530,7 @@ TEST(Executor, AGougeFarFromAnyFinIsMeasuredAndPushesBack) {
   ExecParams p;
   p.settle_time = 0.1;
   p.log_decimation = 5;
+  p.cad_check_motion = 0.25e-3;
   const ExecutionResult r = run(0.3 * mm, p);
   ASSERT_EQ(r.status, ExecStatus::kOk) << r.message;
   EXPECT_EQ(body_removed, 0u);  // the voxels never saw it

@@ -140,8 +140,10 @@ struct ExecParams {
   /// and deeper than its body_band near them): such a contact pushes back with the same penalty
   /// spring (beyond the band: for the depth past it) and counts as a gouge
   /// (ExecutionResult::untracked_penetration_max); in between the contact follows the tool as
-  /// the voxel penalty does. 0: off (then steel the voxels do not hold is air).
-  double cad_check_motion = 0.25e-3;
+  /// the voxel penalty does. 0: off (then steel the voxels do not hold is air). Off by default
+  /// until the tilted family's regression bounds are re-set from a sweep with it (2.5e-4 is the
+  /// setting measured: README "Status").
+  double cad_check_motion = 0;
   /// Apply the grinding (rate) part of the process force as a resistance to the feed, solved
   /// implicitly: the wrench per unit feed speed (impulse of the recent removal intervals / their
   /// net progress, see rate_window) times the TCP's speed along that travel at the end of each
