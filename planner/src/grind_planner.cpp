@@ -650,6 +650,33 @@ void roll_round_convex_corners(std::vector<PathSample>& ps, const std::vector<Ve
   ps = std::move(out);
 }
 
+// Where the wall is concave round the burr (a hole, an inside corner) and made of flat pieces
+// (the CAD's facets: a hole is a polygon), a burr of radius r laid against one piece at the
+// root point crosses the next piece's plane: at a corner turning by θ, by r·(1 − cos θ) ≈ r·θ²/2
+// with that piece's normal, r·θ²/8 with the normals blended (a 6 mm burr in an 8 mm hole drawn
+// to 0.05 mm chords: θ ≈ 0.22 rad, 0.04–0.15 mm into the wall: the hole-ring gouges). Each
+// sample moves off the wall along its normal until the burr's axis stands at least r from the
+// plane of every root point on the concave side of it (p_k above that plane) within 2r, in the
+// section across the fin; the corner's point then stays uncut by about r·θ²/8 (flash, not steel).
+void clear_concave_facets(std::vector<PathSample>& ps, const std::vector<Vec3>& points,
+                          const std::vector<Vec3>& wall, const Vec3& f, double r) {
+  const auto across = [&](const Vec3& v) { return Vec3(v - v.dot(f) * f); };
+  for (PathSample& q : ps) {
+    const Vec3 c = across(q.p + r * q.n);
+    double shift = 0;
+    for (std::size_t j = 0; j < points.size(); ++j) {
+      const Vec3 pj = across(points[j]);
+      if ((pj - c).norm() > 2 * r) continue;
+      const Vec3& nj = wall[j];
+      const double cos_kj = q.n.dot(nj);
+      if (cos_kj < 0.3 || across(q.p - points[j]).dot(nj) <= 0) continue;  // not concave to q
+      const double deficit = r - (c - pj).dot(nj);
+      if (deficit > 0) shift = std::max(shift, deficit / cos_kj);
+    }
+    q.p += shift * q.n;
+  }
+}
+
 // Extra axis offsets e of the passes for a fin `height` high [m]: roughing passes of equal
 // radial depths (each ≤ max_depth_of_cut) down to finish_depth above the wall, then the
 // finishing pass at the stock allowance. Unknown height (0): the finishing pass alone.
@@ -932,6 +959,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     for (std::size_t k : kept) kept_wall.push_back(wall[k]);
     roll_round_convex_corners(ps, pts, kept_wall, f, P.spacing, radius);
   }
+  clear_concave_facets(ps, path.points_C, wall, f, radius + P.stock_allowance);
   // ---- Run-out past the ends of an open path, straight along the end tangents.
   if (!path.closed && P.overrun > 0 && ps.size() >= 3) {
     auto run_out = [&](const PathSample& end, const PathSample& inner, double sign) {
