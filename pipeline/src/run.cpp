@@ -986,8 +986,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
          << exec_summary.residual.flash_removed_fraction * 100
          << " % of the flash removed, highest residual " << std::setprecision(2)
          << exec_summary.residual.residual_flash_max * 1e3 << " mm, deepest gouge "
-         << std::max(exec_summary.residual.gouge_max_depth, exec_summary.untracked_gouge_max) * 1e3
-         << " mm";
+         << m.value("removal.gouge_max_mm", 0.0) << " mm";
       const int skipped = m.value("trajectory.paths_skipped_tool_too_large", 0);
       if (skipped > 0) os << "; " << skipped << " hole(s) too narrow for the burr left alone";
       out.verdict = os.str();

@@ -221,7 +221,7 @@ struct CadContact {
 CadContact untracked_contact(const ToolParams& tool, const MaterialGrid& grid, const Pose& X_CT) {
   constexpr double kSpacing = 0.5e-3, kReach = 2e-3;
   const MeshBvh& bvh = grid.nominal();
-  const TriangleMesh& mesh = bvh.mesh();
+  const TriangleMesh& mesh = bvh.mesh();  // outward-oriented (MaterialGrid's precondition)
   const Vec3 a = (tool.axis_sign * X_CT.linear().col(2)).normalized();
   const Vec3 tip = X_CT.translation();
   const double r = tool.radius, u0 = tool.end == ToolEnd::kBall ? r : 0.0;
@@ -236,12 +236,10 @@ CadContact untracked_contact(const ToolParams& tool, const MaterialGrid& grid, c
     hint = cp.triangle;
     const double u_q = (cp.point - tip).dot(a);
     if (u_q < -1e-9 || u_q > tool.length) continue;
-    const Eigen::Vector3i& tri = mesh.triangles[static_cast<std::size_t>(cp.triangle)];
-    const Vec3 nf = (mesh.vertices[tri[1]] - mesh.vertices[tri[0]])
-                        .cross(mesh.vertices[tri[2]] - mesh.vertices[tri[0]])
-                        .normalized();
+    const Vec3 nf = mesh.triangle_normal(static_cast<std::size_t>(cp.triangle));
     const bool inside = (x - cp.point).dot(nf) < 0;
     const double depth = inside ? r + cp.distance : r - cp.distance;
+    if (depth <= best.depth - best.beyond) continue;  // cannot win, band or not
     const VoxelLabel below = grid.label_at(cp.point - 1.5 * grid.voxel_size() * nf);
     const double band =
         below == VoxelLabel::kBody || below == VoxelLabel::kGouge ? grid.params().body_band : 0.0;
@@ -250,6 +248,13 @@ CadContact untracked_contact(const ToolParams& tool, const MaterialGrid& grid, c
     best = {depth, band, cp.point, d.norm() > 1e-12 ? Vec3(d.normalized()) : nf};
   }
   return best;
+}
+
+// How far the tool moved between two poses, for the removal and CAD-check triggers [m]:
+// translation plus rotation times the cutter's length.
+double tool_motion(const Pose& a, const Pose& b, const ToolParams& tool) {
+  return (a.translation() - b.translation()).norm() +
+         rotation_distance(a.linear(), b.linear()) * tool.length;
 }
 
 // The rate (grinding) part of a process wrench in {C}, torque about the TCP.
@@ -535,6 +540,23 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     return Vec3(vel[3], vel[4], vel[5]);
   };
 
+  // The penalty spring of a contact at `depth` (0: none) with the tool's speed into the body
+  // (contact damping): its magnitude, and its force and torque about the TCP ({C}).
+  auto push = [&](const PenaltyContact& pc, double depth, Vec3& F_C, Vec3& tau_C) {
+    if (!(depth > 0)) {
+      F_C.setZero();
+      tau_C.setZero();
+      return 0.0;
+    }
+    double speed_in = 0;
+    if (force.contact_damping > 0)
+      speed_in = std::max(0.0, -(X_CW.linear() * tcp_velocity_W()).dot(pc.n_C));
+    const double p = penalty_force(force, depth, speed_in);
+    F_C = p * pc.n_C;
+    tau_C = pc.arm_C.cross(F_C);
+    return p;
+  };
+
   const auto wall0 = std::chrono::steady_clock::now();
   std::size_t n = 0;
   for (; n < total_steps; ++n) {
@@ -565,10 +587,7 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     if (grid) {
       since_removal += h;
       const Pose X_CT = X_CW * X_WTb;
-      double moved = 1e300;
-      if (have_removal_pose)
-        moved = (X_CT.translation() - X_CT_last.translation()).norm() +
-                rotation_distance(X_CT.linear(), X_CT_last.linear()) * tool.length;
+      const double moved = have_removal_pose ? tool_motion(X_CT, X_CT_last, tool) : 1e300;
       // Between removal steps the penalty follows the tool (below); removal comes more often
       // while the tool presses into the body, where only a removal step sees the surface's shape.
       const double trigger = contact.depth > 0 ? contact_trigger : motion_trigger;
@@ -638,45 +657,28 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
         // last removal step moves with the tool, its depth taken against the nominal surface's
         // tangent plane there (exact again at the next removal step, at most
         // removal_contact_motion voxels on).
-        double speed_in = 0;
-        if (force.contact_damping > 0)
-          speed_in = std::max(0.0, -(X_CW.linear() * tcp_velocity_W()).dot(contact.n_C));
-        penalty = penalty_force(force, contact.depth_at(X_CT.translation()), speed_in);
-        pen_F_C = penalty * contact.n_C;
-        pen_tau_C = contact.arm_C.cross(pen_F_C);
+        penalty = push(contact, contact.depth_at(X_CT.translation()), pen_F_C, pen_tau_C);
       }
-    }
-
-    if (grid && params.cad_check_motion > 0) {
-      // Steel the voxels do not track: the exact CAD check, then its penalty follows the tool.
-      since_cad += h;
-      const Pose X_CT = X_CW * X_WTb;
-      const double moved =
-          have_cad_pose ? (X_CT.translation() - X_CT_cad.translation()).norm() +
-                              rotation_distance(X_CT.linear(), X_CT_cad.linear()) * tool.length
-                        : 1e300;
-      if (moved >= params.cad_check_motion || since_cad >= params.removal_max_interval - 1e-12) {
-        const CadContact cc = untracked_contact(tool, *grid, X_CT);
-        cad = cc.depth > cc.beyond ? PenaltyContact{cc.depth - cc.beyond, cc.n_C, -cc.n_C,
-                                                    X_CT.translation(), cc.q_C - X_CT.translation()}
-                                   : PenaltyContact{};
-        cad_band = cc.beyond;
-        X_CT_cad = X_CT;
-        have_cad_pose = true;
-        since_cad = 0;
-      }
-      cad_penalty = 0;
-      cad_F_C.setZero();
-      cad_tau_C.setZero();
-      const double depth = cad.depth > 0 ? cad.depth_at(X_CT.translation()) : 0.0;
-      if (depth > 0) {
-        double speed_in = 0;
-        if (force.contact_damping > 0)
-          speed_in = std::max(0.0, -(X_CW.linear() * tcp_velocity_W()).dot(cad.n_C));
-        cad_penalty = penalty_force(force, depth, speed_in);
-        cad_F_C = cad_penalty * cad.n_C;
-        cad_tau_C = cad.arm_C.cross(cad_F_C);
-        if (depth + cad_band > res.untracked_penetration_max) {
+      if (params.cad_check_motion > 0) {
+        // Steel the voxels do not hold: the exact CAD check, its penalty following the tool in
+        // between as the voxels' does.
+        since_cad += h;
+        const double moved_cad = have_cad_pose ? tool_motion(X_CT, X_CT_cad, tool) : 1e300;
+        if (moved_cad >= params.cad_check_motion ||
+            since_cad >= params.removal_max_interval - 1e-12) {
+          const CadContact cc = untracked_contact(tool, *grid, X_CT);
+          cad = cc.depth > cc.beyond
+                    ? PenaltyContact{cc.depth - cc.beyond, cc.n_C, -cc.n_C, X_CT.translation(),
+                                     cc.q_C - X_CT.translation()}
+                    : PenaltyContact{};
+          cad_band = cc.beyond;
+          X_CT_cad = X_CT;
+          have_cad_pose = true;
+          since_cad = 0;
+        }
+        const double depth = cad.depth > 0 ? cad.depth_at(X_CT.translation()) : 0.0;
+        cad_penalty = push(cad, depth, cad_F_C, cad_tau_C);
+        if (depth > 0 && depth + cad_band > res.untracked_penetration_max) {
           res.untracked_penetration_max = depth + cad_band;
           res.untracked_penetration_time = t_sim;
         }
