@@ -54,6 +54,31 @@ GrindPath hole_circle(double R, int n) {
   return p;
 }
 
+// A hole drawn as the CAD draws it: a polygon of `facets` flat facets with its vertices on a
+// circle of radius R about the z_C axis, `per_facet` root points along each facet with the
+// facet's inward normal.
+struct PolygonHole {
+  GrindPath path;
+  std::vector<Vec3> corner, inward;  // facet k runs from corner[k] to corner[k + 1]
+};
+PolygonHole polygon_hole(double R, int facets, int per_facet) {
+  PolygonHole h;
+  h.path.closed = true;
+  h.path.fin_normal_C = kUp;
+  for (int k = 0; k < facets; ++k) {
+    const double a = 2 * M_PI * k / facets, mid = 2 * M_PI * (k + 0.5) / facets;
+    h.corner.push_back(Vec3(R * std::cos(a), R * std::sin(a), 0));
+    h.inward.push_back(-Vec3(std::cos(mid), std::sin(mid), 0));
+  }
+  for (int k = 0; k < facets; ++k)
+    for (int i = 0; i < per_facet; ++i) {
+      const double w = (i + 0.5) / per_facet;
+      h.path.points_C.push_back((1 - w) * h.corner[k] + w * h.corner[(k + 1) % facets]);
+      h.path.normals_C.push_back(h.inward[k]);
+    }
+  return h;
+}
+
 // Parameters with the burr flush against the wall (no stock allowance) and approach and
 // retract straight along the fin normal at the wall offset (no lead-in): exact geometry.
 GrindParams flush() {
@@ -269,23 +294,11 @@ TEST(GrindPlanner, BurrStaysOutOfAPolygonalHolesFacets) {
   Pose X_BC = translation(Vec3(0.7, 0.05, -0.15));
   X_BC.linear() = Eigen::AngleAxisd(0.5, Vec3::UnitZ()).toRotationMatrix();
   const double R = 0.03;
-  const int facets = 24, per_facet = 8;
-  GrindPath hole;
-  hole.closed = true;
-  hole.fin_normal_C = kUp;
-  std::vector<Vec3> corner(facets), inward(facets);
-  for (int k = 0; k < facets; ++k) {
-    const double a = 2 * M_PI * k / facets, mid = 2 * M_PI * (k + 0.5) / facets;
-    corner[k] = Vec3(R * std::cos(a), R * std::sin(a), 0);
-    inward[k] = -Vec3(std::cos(mid), std::sin(mid), 0);
-  }
-  for (int k = 0; k < facets; ++k)
-    for (int i = 0; i < per_facet; ++i) {
-      const double w = (i + 0.5) / per_facet;
-      hole.points_C.push_back((1 - w) * corner[k] + w * corner[(k + 1) % facets]);
-      hole.normals_C.push_back(inward[k]);
-    }
-  const GrindResult r = plan_grind(robot, X_BC, hole, flush());
+  const int facets = 24;
+  const PolygonHole h = polygon_hole(R, facets, 8);
+  const std::vector<Vec3>& corner = h.corner;
+  const std::vector<Vec3>& inward = h.inward;
+  const GrindResult r = plan_grind(robot, X_BC, h.path, flush());
   ASSERT_TRUE(r.ok()) << r.message;
   const double rad = robot.tool.radius;
   double worst_in = -1, worst_off = 0;
@@ -305,6 +318,47 @@ TEST(GrindPlanner, BurrStaysOutOfAPolygonalHolesFacets) {
   EXPECT_LT(worst_off, rad * (1 / std::cos(M_PI / facets) - 1) + 0.02e-3);
   std::printf("24-facet hole: burr axis at most %.4f mm into a facet plane, at most %.3f mm off "
               "the nearest\n", worst_in * 1e3, worst_off * 1e3);
+}
+
+// The planner eases a clearance in and out along a path (a hole's facets and its root points'
+// scatter ask for one that jumps from sample to sample): the upper envelope with a bounded slope
+// is never below the values, changes by at most the slope × the length between neighbours, and
+// is the smallest such (each point's value is one carried down the slope from some point, the
+// shorter way round a closed path), checked against the definition by brute force.
+TEST(GrindPlanner, UpperEnvelopeAlongAPathIsTheSmallestWithBoundedSlope) {
+  unsigned state = 12345u;
+  const auto uniform = [&] {  // deterministic, uniform in [0, 1)
+    state = state * 1664525u + 1013904223u;
+    return static_cast<double>(state >> 8) / 16777216.0;
+  };
+  for (const bool closed : {false, true}) {
+    // 90 points round a 20 mm circle at irregular angles, sparse spikes up to 0.3 mm between.
+    const std::size_t n = 90;
+    std::vector<Vec3> points;
+    std::vector<double> v, e, at;  // at: length along the polyline from the first point
+    double angle = 0;
+    for (std::size_t k = 0; k < n; ++k) {
+      angle += 2 * M_PI / n * (0.5 + uniform());
+      points.push_back(0.02 * Vec3(std::cos(angle), std::sin(angle), 0));
+      at.push_back(k ? at.back() + (points[k] - points[k - 1]).norm() : 0.0);
+      v.push_back(uniform() < 0.1 ? 0.3e-3 * uniform() : 0.0);
+    }
+    const double total = at.back() + (points.front() - points.back()).norm();
+    e = v;
+    const double slope = 0.1;
+    upper_envelope_along(e, points, slope, closed);
+    for (std::size_t k = 0; k < n; ++k) {
+      double expect = v[k];
+      for (std::size_t j = 0; j < n; ++j) {
+        double d = std::abs(at[k] - at[j]);
+        if (closed) d = std::min(d, total - d);
+        expect = std::max(expect, v[j] - slope * d);
+      }
+      EXPECT_NEAR(e[k], expect, 1e-15) << (closed ? "closed" : "open") << " k=" << k;
+      EXPECT_GE(e[k], v[k]);
+      if (k) EXPECT_LE(std::abs(e[k] - e[k - 1]), slope * (at[k] - at[k - 1]) + 1e-15);
+    }
+  }
 }
 
 TEST(GrindPlanner, RotationAboutToolAxisCannotLeaveWristSingularityOfThisTool) {

@@ -250,6 +250,13 @@ std::string trajectory_csv(const GrindResult& result);
 /// total time, lengths, passes, re-oriented ranges and feed reductions).
 std::string grind_summary_json(const GrindResult& result);
 
+/// The smallest e ≥ v (in place) whose change between neighbouring points is at most `slope` ×
+/// their distance: e_k = max_j (v_j − slope · d_kj), d_kj the length along the polyline
+/// `points` (round the shorter way when `closed`). The planner eases a clearance in and out with
+/// it. `points` has v's size.
+void upper_envelope_along(std::vector<double>& v, const std::vector<Vec3>& points, double slope,
+                          bool closed);
+
 /// Which joint quantity a plot shows.
 enum class JointQuantity { kPosition, kVelocity, kAcceleration };
 
