@@ -54,31 +54,6 @@ GrindPath hole_circle(double R, int n) {
   return p;
 }
 
-// A hole drawn as the CAD draws it: a polygon of `facets` flat facets with its vertices on a
-// circle of radius R about the z_C axis, `per_facet` root points along each facet with the
-// facet's inward normal.
-struct PolygonHole {
-  GrindPath path;
-  std::vector<Vec3> corner, inward;  // facet k runs from corner[k] to corner[k + 1]
-};
-PolygonHole polygon_hole(double R, int facets, int per_facet) {
-  PolygonHole h;
-  h.path.closed = true;
-  h.path.fin_normal_C = kUp;
-  for (int k = 0; k < facets; ++k) {
-    const double a = 2 * M_PI * k / facets, mid = 2 * M_PI * (k + 0.5) / facets;
-    h.corner.push_back(Vec3(R * std::cos(a), R * std::sin(a), 0));
-    h.inward.push_back(-Vec3(std::cos(mid), std::sin(mid), 0));
-  }
-  for (int k = 0; k < facets; ++k)
-    for (int i = 0; i < per_facet; ++i) {
-      const double w = (i + 0.5) / per_facet;
-      h.path.points_C.push_back((1 - w) * h.corner[k] + w * h.corner[(k + 1) % facets]);
-      h.path.normals_C.push_back(h.inward[k]);
-    }
-  return h;
-}
-
 // Parameters with the burr flush against the wall (no stock allowance) and approach and
 // retract straight along the fin normal at the wall offset (no lead-in): exact geometry.
 GrindParams flush() {
@@ -294,11 +269,23 @@ TEST(GrindPlanner, BurrStaysOutOfAPolygonalHolesFacets) {
   Pose X_BC = translation(Vec3(0.7, 0.05, -0.15));
   X_BC.linear() = Eigen::AngleAxisd(0.5, Vec3::UnitZ()).toRotationMatrix();
   const double R = 0.03;
-  const int facets = 24;
-  const PolygonHole h = polygon_hole(R, facets, 8);
-  const std::vector<Vec3>& corner = h.corner;
-  const std::vector<Vec3>& inward = h.inward;
-  const GrindResult r = plan_grind(robot, X_BC, h.path, flush());
+  const int facets = 24, per_facet = 8;
+  GrindPath hole;
+  hole.closed = true;
+  hole.fin_normal_C = kUp;
+  std::vector<Vec3> corner(facets), inward(facets);
+  for (int k = 0; k < facets; ++k) {
+    const double a = 2 * M_PI * k / facets, mid = 2 * M_PI * (k + 0.5) / facets;
+    corner[k] = Vec3(R * std::cos(a), R * std::sin(a), 0);
+    inward[k] = -Vec3(std::cos(mid), std::sin(mid), 0);
+  }
+  for (int k = 0; k < facets; ++k)
+    for (int i = 0; i < per_facet; ++i) {
+      const double w = (i + 0.5) / per_facet;
+      hole.points_C.push_back((1 - w) * corner[k] + w * corner[(k + 1) % facets]);
+      hole.normals_C.push_back(inward[k]);
+    }
+  const GrindResult r = plan_grind(robot, X_BC, hole, flush());
   ASSERT_TRUE(r.ok()) << r.message;
   const double rad = robot.tool.radius;
   double worst_in = -1, worst_off = 0;
