@@ -129,6 +129,13 @@ RobotModel parse_robot(const std::string& yaml_text, const std::string& name) {
   r.tool.inertial = parse_inertial(tool.at("inertial"));
   r.tool.radius = tool.get_double("radius", 1e-4, 0.5, r.tool.radius);
   r.tool.length = tool.get_double("length", 1e-4, 0.5, r.tool.length);
+  r.tool.shank_radius = tool.get_double("shank_radius", 1e-4, 0.05, r.tool.shank_radius);
+  r.tool.shank_length = tool.get_double("shank_length", 0.0, 0.3, r.tool.shank_length);
+  r.tool.collet_radius = tool.get_double("collet_radius", 1e-4, 0.1, r.tool.collet_radius);
+  r.tool.collet_length = tool.get_double("collet_length", 0.0, 0.3, r.tool.collet_length);
+  if (r.tool.length + r.tool.shank_length + r.tool.collet_length > r.tool.X_ET.translation().norm())
+    tool.fail("expected length + shank_length + collet_length within the tool's reach |X_ET| = " +
+              std::to_string(r.tool.X_ET.translation().norm()) + " m");
 
   if (root.has("home")) {
     const ConfigNode home = root.at("home");

@@ -6,10 +6,13 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <optional>
 
+#include "flashtwin/core/format.hpp"
 #include "flashtwin/core/io.hpp"
 #include "flashtwin/core/mesh_query.hpp"
 #include "flashtwin/perception/flash_detection.hpp"
+#include "flashtwin/planner/transit.hpp"
 #include "flashtwin/pipeline/run.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
 #include "flashtwin/sim/mujoco_handles.hpp"
@@ -98,6 +101,87 @@ Motion motion_of(const PlannedPath& plan) {
   return m;
 }
 
+namespace {
+
+// A transit's motion: its trajectory and the tool poses it passes.
+Motion transit_motion(const planner::TransitResult& tr, std::size_t path) {
+  Motion m;
+  m.path = path;
+  m.transit = true;
+  m.trajectory.t = tr.trajectory.t;
+  m.trajectory.q = tr.trajectory.q;
+  m.trajectory.dq = tr.trajectory.dq;
+  m.tcp_B = tr.tcp_B;
+  return m;
+}
+
+double duration_of(const Motion& m) {
+  return m.trajectory.t.empty() ? 0.0 : m.trajectory.t.back() - m.trajectory.t.front();
+}
+
+}  // namespace
+
+JobMotions plan_job_motions(const Scenario& sc, const ScenarioScan& ss, const Pose& X_WC_plan,
+                            const MeshBvh& cad_C, const std::vector<PlannedPath>& plans) {
+  JobMotions out;
+  out.min_clearance = sim::CellCollision::kReach;
+  if (plans.empty()) return out;
+  // The planner's world: the cell's obstacles and the CAD where the plan put the casting; no
+  // flash geometry (the transits keep transit_clearance, more than a fin stands).
+  const sim::MjModelPtr model = sim::load_mjcf_file(ss.files.mjcf);
+  const sim::CellCollision cell(*model, cad_C, X_WC_plan);
+  const sim::MjDataPtr data = sim::make_data(model.get());
+  int qadr[kNumJoints];
+  for (int i = 0; i < kNumJoints; ++i)
+    qadr[i] = model->jnt_qposadr[sim::require_id(model.get(), mjOBJ_JOINT, "joint" + std::to_string(i + 1))];
+  const planner::ClearanceFn clearance = [&](const Vector6& q) {
+    for (int i = 0; i < kNumJoints; ++i) data->qpos[qadr[i]] = q[i];
+    mj_kinematics(model.get(), data.get());
+    const sim::CollisionHit hit = cell.check(*data);
+    return planner::Clearance{hit.clearance, hit.robot_geom + " – " + hit.obstacle};
+  };
+  planner::TransitParams tp;
+  tp.clearance = sc.execution.transit_clearance;
+  tp.min_end_clearance = std::min(tp.min_end_clearance, tp.clearance);
+  tp.up_B = ss.setup.spec.X_WB.linear().transpose() * Vec3::UnitZ();
+  tp.via = {sc.robot.home};
+  const auto add_transit = [&](const Vector6& from, const Vector6& to, std::size_t path) {
+    const planner::TransitResult tr = planner::plan_transit(sc.robot, from, to, clearance, tp);
+    if (!tr.ok) return std::optional<std::string>(tr.message);
+    spdlog::debug("transit to path {}: {}, {:.1f} s, clearance {:.1f} mm, {} checks", path,
+                  tr.message, tr.duration(), tr.min_clearance * 1e3, tr.checks);
+    out.motions.push_back(transit_motion(tr, path));
+    ++out.transits;
+    out.lifted += tr.lifted;
+    out.transit_time += tr.duration();
+    out.min_clearance = std::min(out.min_clearance, tr.min_clearance);
+    return std::optional<std::string>();
+  };
+  Vector6 q_at = sc.robot.home;
+  std::size_t last_path = plans.front().first;
+  for (const PlannedPath& plan : plans) {
+    Motion grind = motion_of(plan);
+    if (const auto why = add_transit(q_at, grind.trajectory.q.front(), plan.first)) {
+      spdlog::warn("path {}: left alone: {}", plan.first, *why);
+      out.refused_paths.push_back(plan.first);
+      if (out.first_refusal.empty()) out.first_refusal = "path " + std::to_string(plan.first) + ": " + *why;
+      continue;
+    }
+    q_at = grind.trajectory.q.back();
+    last_path = plan.first;
+    out.motions.push_back(std::move(grind));
+  }
+  if (!out.motions.empty()) {
+    if (const auto why = add_transit(q_at, sc.robot.home, last_path)) {
+      spdlog::warn("the way home from path {}: {}", last_path, *why);
+      out.home_refused = true;
+      if (out.first_refusal.empty()) out.first_refusal = "the way home: " + *why;
+    }
+  }
+  for (const Motion& m : out.motions) out.cycle_time += duration_of(m);
+  return out;
+}
+
 Execution::Execution(const Scenario& sc, const sim::Casting& casting)
     : sc_(sc),
       grid_(std::make_shared<sim::MaterialGrid>(sim::make_material_grid(casting, sc.execution.material))) {
@@ -125,8 +209,18 @@ void Execution::run_motions(const ScenarioScan& ss, const std::vector<Motion>& m
   sim::MaterialGrid& grid = *grid_;
   const int setup_index = static_cast<int>(summary_.X_CB.size());
   summary_.X_CB.push_back(ss.setup.spec.X_WC.inverse() * ss.setup.spec.X_WB);
+  // The twin's collision measurement: the casting where it truly stands, its standing flash.
+  const sim::CellCollision cell(*model, grid.nominal(), ss.setup.spec.X_WC, &grid);
+  ep.collisions = &cell;
+  const Motion* previous = nullptr;
+  sim::ExecutionResult last;
   for (const Motion& motion : motions) {
     const std::size_t k = motion.path + path_offset;
+    // Joined to the previous motion (a job's transit and path): on from where the arm was left.
+    const bool joined = previous && last.status != sim::ExecStatus::kForceLimit &&
+                        (previous->trajectory.q.back() - motion.trajectory.q.front()).norm() < 1e-9;
+    ep.start_qpos = joined ? last.q_end : std::vector<double>{};
+    ep.start_qvel = joined ? last.qvel_end : std::vector<double>{};
     // The executor's trajectory: the tool poses it should pass in the cell's world {W}.
     sim::JointTrajectory tr = motion.trajectory;
     tr.planned_tcp_W.clear();
@@ -143,10 +237,34 @@ void Execution::run_motions(const ScenarioScan& ss, const std::vector<Motion>& m
     path_tool.radius += sc_.faults.tool_radius_error;  // a drill: not the burr planned for
     // The flange sensor's noise, offset and drift: one stream per motion of this run.
     ep.sensor_seed = sc_.seed * 0x9E3779B97F4A7C15ull + 0x5E15E0ull + 131 * static_cast<std::uint64_t>(k) +
-                     static_cast<std::uint64_t>(setup_index);
-    const sim::ExecutionResult r =
-        sim::execute_trajectory(*model, tr, &grid, path_tool, sc_.execution.force, ep);
-    ++executed_;
+                     static_cast<std::uint64_t>(setup_index) + (motion.transit ? 0x7A5u : 0u);
+    last = sim::execute_trajectory(*model, tr, &grid, path_tool, sc_.execution.force, ep);
+    const sim::ExecutionResult& r = last;
+    previous = &motion;
+    cycle_time_ += duration_of(motion);
+    if (r.collision_steps > 0) {
+      const Vec3 deepest_C = ss.setup.spec.X_WC.inverse() * r.deepest_collision.point_W;
+      if (collision_steps_ == 0)
+        first_collision_ = strf("%s – %s at %.2f s (%s %zu)", r.first_collision.robot_geom.c_str(),
+                                r.first_collision.obstacle.c_str(), sim_time_ + r.first_collision_time,
+                                motion.transit ? "transit to path" : "path", k);
+      spdlog::warn("execution: {} {}: {} step(s) with a collision; first {} – {} at {:.2f} s; "
+                   "deepest {} – {}, {:.2f} mm at {:.2f} s at ({:.1f}, {:.1f}, {:.1f}) mm in {{C}}",
+                   motion.transit ? "transit to path" : "path", k, r.collision_steps,
+                   r.first_collision.robot_geom, r.first_collision.obstacle, r.first_collision_time,
+                   r.deepest_collision.robot_geom, r.deepest_collision.obstacle,
+                   r.collision_max_depth * 1e3, r.deepest_collision_time, deepest_C.x() * 1e3,
+                   deepest_C.y() * 1e3, deepest_C.z() * 1e3);
+    }
+    collision_steps_ += r.collision_steps;
+    collision_depth_ = std::max(collision_depth_, r.collision_max_depth);
+    min_clearance_ = std::min(min_clearance_, r.min_clearance);
+    if (motion.transit) {
+      ++transits_;
+      transit_track_max_ = std::max(transit_track_max_, r.tracking_max);
+    } else {
+      ++executed_;
+    }
     spdlog::debug("execution: path {}: {} ({}), {:.1f} s simulated in {:.2f} s, tracking rmse "
                   "{:.3f} mm, flash removed {:.2f} mm3, gouge {:.3f} mm3, {} removal steps in {} steps; "
                   "deepest {:.3f} mm at {:.2f} s (tracking error {:.3f} mm)",
@@ -170,10 +288,12 @@ void Execution::run_motions(const ScenarioScan& ss, const std::vector<Motion>& m
     sim_time_ += r.sim_time;
     wall_ += r.wall_time;
     steps_ += r.steps;
-    track_sq_ += r.tracking_rmse * r.tracking_rmse * static_cast<double>(r.tracking_samples);
-    track_n_ += r.tracking_samples;
-    track_max_ = std::max(track_max_, r.tracking_max);
-    track_rot_max_ = std::max(track_rot_max_, r.tracking_max_rotation);
+    if (!motion.transit) {  // the grinding motions' tracking (transits': transit_tracking_max)
+      track_sq_ += r.tracking_rmse * r.tracking_rmse * static_cast<double>(r.tracking_samples);
+      track_n_ += r.tracking_samples;
+      track_max_ = std::max(track_max_, r.tracking_max);
+      track_rot_max_ = std::max(track_rot_max_, r.tracking_max_rotation);
+    }
     violations_ += r.joint_limit_violations;
     limit_excess_ = std::max(limit_excess_, r.max_limit_excess);
     clamped_ += r.clamped_steps;
@@ -223,6 +343,14 @@ ExecutionSummary Execution::finish(json& m) {
   m["execution.clamped_steps"] = clamped_;
   m["execution.force_control"] = sc_.execution.exec.force_control.enabled;
   m["execution.compensation"] = sim::to_string(sc_.execution.exec.compensation_source);
+  m["execution.transits"] = transits_;
+  m["execution.transit_tracking_max_mm"] = transit_track_max_ * 1e3;
+  m["execution.collisions"] = collision_steps_;
+  m["execution.collision_max_depth_mm"] = collision_depth_ * 1e3;
+  m["execution.first_collision"] = first_collision_;
+  m["execution.min_clearance_mm"] = min_clearance_ * 1e3;
+  // Program time of what ran: with transits the whole job, else the grinding motions alone.
+  if (transits_ > 0) m["cycle.time_s"] = cycle_time_;
   m["execution.load_estimate_rmse_n"] = load_est_n_ ? std::sqrt(load_est_sq_ / load_est_n_) : 0.0;
   const auto& res = out.residual;
   m["removal.flash_volume_mm3"] = res.flash_volume_initial * 1e9;

@@ -167,6 +167,10 @@ std::vector<std::string> quality_failures(const QualityLimits& q, const json& m)
   const double stops = number("execution.paths_stopped_force_limit", 0);
   if (stops > q.max_protective_stops)
     bad.push_back(strf("%.0f protective stop(s) (limit %d)", stops, q.max_protective_stops));
+  const double collisions = number("execution.collisions", 0);
+  if (collisions > q.max_collisions)
+    bad.push_back(strf("%.0f step(s) with a collision, first: %s (limit %d)", collisions,
+                       m.value("execution.first_collision", std::string("?")).c_str(), q.max_collisions));
   return bad;
 }
 
@@ -875,12 +879,35 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
   if (!out.refused && sc.execution.enabled && (!planned_paths.empty() || second)) {
     progress(opt, "execution", 0.6);
     const auto t_exec = Clock::now();
+    Execution exec(sc, setup.casting);
+    // The whole job of a setup: transits planned on the CAD where perception put the part (a
+    // part-offset drill: where the plan thinks it is), then run with the paths continuously.
+    std::size_t transits = 0, lifted = 0, left_alone = 0;
+    double transit_time = 0, min_clearance = sim::CellCollision::kReach;
+    std::string refusal;
+    const auto job_of = [&](const ScenarioScan& s, const Perception& p, const Plans& pl) {
+      std::vector<Motion> motions;
+      if (!sc.execution.transits) {
+        for (const auto& pp : pl.paths) motions.push_back(motion_of(pp));
+        return motions;
+      }
+      const Pose X_WC_plan = s.setup.spec.X_WM * p.X_CM_est.inverse() * sc.faults.part_offset_C.inverse();
+      JobMotions job = plan_job_motions(sc, s, X_WC_plan, exec.grid().nominal(), pl.paths);
+      transits += job.transits;
+      lifted += job.lifted;
+      left_alone += job.refused_paths.size() + job.home_refused;
+      transit_time += job.transit_time;
+      min_clearance = std::min(min_clearance, job.min_clearance);
+      if (refusal.empty()) refusal = job.first_refusal;
+      return std::move(job.motions);
+    };
+    const std::vector<Motion> motions1 = job_of(ss, perc, plans);
     std::unique_ptr<VideoRecorder> video;
     FrameHook hook;
     if (!opt.video.path.empty()) {
       double duration = 0;
-      for (const auto& p : planned_paths)
-        duration += p.second.total_time + sc.execution.exec.settle_time;
+      for (const auto& mo : motions1)
+        duration += mo.trajectory.t.back() - mo.trajectory.t.front() + sc.execution.exec.settle_time;
       // The second setup's motions are not planned yet: as long again, and at least two minutes.
       if (second) duration = std::max(2 * duration, 120.0);
       VideoOptions vo = opt.video;
@@ -893,8 +920,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
       hook = [&video](const mjModel* mm, mjData* d, double t, const sim::MaterialGrid& grid,
                       std::size_t path) { video->on_step(mm, d, t, grid, path); };
     }
-    Execution exec(sc, setup.casting);
-    exec.run(ss, planned_paths, hook);
+    exec.run_motions(ss, motions1, hook);
     const ScenarioScan* last_scan = &ss;
     Pose last_X_CM_est = perc.X_CM_est;
     std::optional<SecondSetup> s2;
@@ -912,7 +938,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
       if (ground_twice) {
         const auto t_exec2 = Clock::now();
         if (video) video->new_setup();
-        exec.run(s2->scan, s2->plans.paths, hook, det.paths.size());
+        exec.run_motions(s2->scan, job_of(s2->scan, s2->perception, s2->plans), hook, det.paths.size());
         execution_s += seconds_since(t_exec2);
         last_scan = &s2->scan;
         last_X_CM_est = s2->perception.X_CM_est;
@@ -941,6 +967,17 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     } else {
       execution_s += seconds_since(t_exec);
       fail_plans(plans, det.paths.size(), "");
+    }
+    if (sc.execution.transits) {
+      m["trajectory.transits"] = transits;
+      m["trajectory.transits_lifted"] = lifted;
+      m["trajectory.transit_time_s"] = transit_time;
+      m["trajectory.transit_min_clearance_mm"] = min_clearance * 1e3;
+      m["trajectory.transits_refused"] = left_alone;
+      if (left_alone > 0 && out.exit_code == 0) {
+        out.exit_code = 1;
+        out.verdict = std::to_string(left_alone) + " transit(s) not clear, their path(s) left alone (" + refusal + ")";
+      }
     }
     const auto t_fin = Clock::now();
     exec_summary = exec.finish(m);

@@ -416,6 +416,10 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     const ConfigNode t = root.at("tool");
     sc.robot.tool.radius = t.get_double("radius", 5e-4, 0.05, sc.robot.tool.radius);
     sc.robot.tool.length = t.get_double("length", 1e-3, 0.2, sc.robot.tool.length);
+    sc.robot.tool.shank_radius = t.get_double("shank_radius", 1e-4, 0.05, sc.robot.tool.shank_radius);
+    sc.robot.tool.shank_length = t.get_double("shank_length", 0.0, 0.3, sc.robot.tool.shank_length);
+    sc.robot.tool.collet_radius = t.get_double("collet_radius", 1e-4, 0.1, sc.robot.tool.collet_radius);
+    sc.robot.tool.collet_length = t.get_double("collet_length", 0.0, 0.3, sc.robot.tool.collet_length);
     if (sc.robot.tool.length < sc.robot.tool.radius)
       t.fail("expected length >= radius (the ball-ended burr needs it)");
   }
@@ -447,6 +451,8 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     auto& e = sc.execution;
     e.enabled = ex.get_bool("enabled", e.enabled);
     e.rescan = ex.get_bool("rescan", e.rescan);
+    e.transits = ex.get_bool("transits", e.transits);
+    e.transit_clearance = ex.get_double("transit_clearance", 1e-3, 0.2, e.transit_clearance);
     e.exec.settle_time = ex.get_double("settle_time", 0, 10, e.exec.settle_time);
     e.exec.max_force = ex.get_double("max_force", 0, 1e7, e.exec.max_force);
     e.exec.feedforward = ex.get_bool("feedforward", e.exec.feedforward);
@@ -547,13 +553,14 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
   }
   if (root.has("quality")) {
     const ConfigNode q = root.at("quality");
-    if (!q.is_map()) q.fail("expected a mapping of limits (removed_min, residual_max_mm, gouge_max_mm, protective_stops_max)");
+    if (!q.is_map()) q.fail("expected a mapping of limits (removed_min, residual_max_mm, gouge_max_mm, protective_stops_max, collisions_max)");
     auto& ql = sc.quality;
     ql.min_removed_fraction = q.get_double("removed_min", 0, 1, ql.min_removed_fraction);
     ql.max_residual_mm = q.get_double("residual_max_mm", 0, 100, ql.max_residual_mm);
     ql.max_gouge_mm = q.get_double("gouge_max_mm", 0, 100, ql.max_gouge_mm);
     ql.max_protective_stops =
         static_cast<int>(q.get_int("protective_stops_max", 0, 1000000, ql.max_protective_stops));
+    ql.max_collisions = static_cast<int>(q.get_int("collisions_max", 0, 1000000000, ql.max_collisions));
   }
   if (root.has("expect")) {
     const ConfigNode ex = root.at("expect");

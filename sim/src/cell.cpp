@@ -28,8 +28,12 @@ const Vec3 kScannerHeadCentre_M(0.0, 0.0, -0.04);  // [m] box centre in {M}
 const Vec3 kScannerHeadHalfSize(0.06, 0.09, 0.035);
 // Fixture blocks: half extents and the clearance to the casting they are laid out with.
 const Vec3 kFixtureHalfSize(0.012, 0.03, 0.0125);
-constexpr double kFixtureGap = 0.008;     // [m] clear of the casting
-constexpr double kFixtureOffset = 0.02;   // [m] centre outside the bounds: half width + gap
+// The gap leaves the flash and the burr grinding it clear, as a fixture designer would (blocks
+// locate on datum faces, never on flash): fins stand up to 8 mm out of the parting line (the
+// generator's bound), the burr beside a fin's tip takes up to its 12 mm diameter (the robot
+// file's burr), 2 mm to spare.
+constexpr double kFixtureGap = 0.022;     // [m] clear of the casting
+constexpr double kFixtureOffset = kFixtureGap + 0.012;  // [m] centre outside the bounds: + half width
 
 std::string num(double v) { return exact_number(v); }
 
@@ -86,6 +90,15 @@ std::vector<FixtureBlock> fixture_blocks_from_bounds(const CellSpec& spec, const
     blocks.push_back(b);
   }
   return blocks;
+}
+
+// A cylinder of the tool about the flange's z axis from z0 to z1 (none when not longer than 0).
+std::string tool_cylinder(const char* name, double z0, double z1, double radius,
+                          const std::string& indent) {
+  if (!(z1 > z0)) return "";
+  return indent + "  <geom name=\"" + name + "\" type=\"cylinder\" fromto=\"0 0 " + num(z0) +
+         " 0 0 " + num(z1) + "\" size=\"" + num(radius) +
+         "\" contype=\"0\" conaffinity=\"0\" group=\"1\" material=\"spindle\"/>\n";
 }
 
 // ---- exact geometric tests for the layout (boxes and triangle meshes)
@@ -276,15 +289,19 @@ std::string arm_mjcf(const RobotModel& robot, const Pose& X_WB, const CellSpec& 
   const Pose C6 = dh_constant(robot.dh[5]);
   const ToolDescription& tool = robot.tool;
   const double tool_len = tool.X_ET.translation().norm();
+  // Along the tool axis from the flange: spindle body, collet nut, exposed shank, burr.
+  const double burr_top = std::max(0.0, tool_len - tool.length);
+  const double collet_end = std::max(0.0, burr_top - tool.shank_length);
+  const double spindle_end = std::max(0.0, collet_end - tool.collet_length);
   // The tool body sits at the flange {E}; its frame is {E}. The flange site (the F/T sensor's
   // frame) is on the tool body, so the sensor measures the wrist's wrench on the tool alone.
   os << indent << "<body name=\"tool\" " << pose_attrs(C6) << ">\n"
      << indent << "  " << inertial_xml(tool.inertial, Pose::Identity()) << "\n"
      << indent << "  <site name=\"flange\" pos=\"0 0 0\" size=\"0.01\" rgba=\"0.9 0.1 0.1 1\" "
      << "group=\"3\"/>\n"
-     << indent << "  <geom name=\"spindle\" type=\"cylinder\" fromto=\"0 0 0 0 0 "
-     << num(std::max(0.0, tool_len - tool.length)) << "\" size=\"" << num(kSpindleRadius) << "\" contype=\"0\" "
-     << "conaffinity=\"0\" group=\"1\" material=\"spindle\"/>\n"
+     << tool_cylinder("spindle", 0, spindle_end, kSpindleRadius, indent)
+     << tool_cylinder("collet", spindle_end, collet_end, tool.collet_radius, indent)
+     << tool_cylinder("shank", collet_end, burr_top, tool.shank_radius, indent)
      << indent << "  <geom name=\"burr\" type=\"capsule\" fromto=\"" << vec3_string(tool.X_ET * Vec3(0, 0, -tool.length)) << " "
      << vec3_string(tool.X_ET * Vec3(0, 0, -tool.radius)) << "\" size=\"" << num(tool.radius)
      << "\" contype=\"0\" conaffinity=\"0\" group=\"1\" material=\"burr\"/>\n"

@@ -371,6 +371,10 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
   const double h = params.timestep > 0 ? params.timestep : model.opt.timestep;
   if (!(h > 0 && h <= 1e-3 * (1 + 1e-12)))
     bad("timestep", "a MuJoCo step <= 0.001 s (>= 1 kHz); the model's is too long", h);
+  if (!params.start_qpos.empty() &&
+      (params.start_qpos.size() != static_cast<std::size_t>(model.nq) ||
+       params.start_qvel.size() != static_cast<std::size_t>(model.nv)))
+    bad("start_qpos", "the model's nq positions and nv velocities", static_cast<double>(params.start_qpos.size()));
 
   // Our own copy: the step may change and the servos' ctrlrange is lifted so the feed-forward
   // offset can ride on ctrl (references are clamped here; forcerange still limits torque).
@@ -456,6 +460,11 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
       d->qpos[c.qadr[i]] = q0[i];
       d->qvel[c.dadr[i]] = dq0[i];
       d->ctrl[c.act[i]] = q0[i];
+    }
+    // The whole job run continuously: the state the previous motion left.
+    if (!params.start_qpos.empty()) {
+      mju_copy(d->qpos, params.start_qpos.data(), m->nq);
+      mju_copy(d->qvel, params.start_qvel.data(), m->nv);
     }
   }
   mj_forward(m, d);
@@ -557,6 +566,8 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     return p;
   };
 
+  std::optional<CollisionMonitor> monitor;
+  if (params.collisions) monitor.emplace(*params.collisions);
   const auto wall0 = std::chrono::steady_clock::now();
   std::size_t n = 0;
   for (; n < total_steps; ++n) {
@@ -573,6 +584,23 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
       else m->opt.disableflags |= mjDSBL_SENSOR;
     }
     mj_step1(m, d);  // positions, velocities (and their sensors) of the current state
+    if (monitor) {
+      // The twin's collision count (the controller never sees it).
+      CollisionHit hit = monitor->update(*d);
+      res.min_clearance = std::min(res.min_clearance, hit.clearance);
+      if (hit.colliding()) {
+        ++res.collision_steps;
+        if (-hit.clearance > res.collision_max_depth) {
+          res.collision_max_depth = -hit.clearance;
+          res.deepest_collision = hit;
+          res.deepest_collision_time = t_sim;
+        }
+        if (res.first_collision_time < 0) {
+          res.first_collision = std::move(hit);
+          res.first_collision_time = t_sim;
+        }
+      }
+    }
 
     const Pose X_WT = pose_of(d->site_xpos + 3 * c.tcp, d->site_xmat + 9 * c.tcp);
     // {Tb}: where the burr's TCP truly stands (the controller's {T} but for a tcp_offset drill);
@@ -901,6 +929,8 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     }
   }
 
+  res.q_end.assign(d->qpos, d->qpos + m->nq);
+  res.qvel_end.assign(d->qvel, d->qvel + m->nv);
   res.steps = n;
   res.sim_time = static_cast<double>(n) * h;
   res.wall_time = std::chrono::duration<double>(wall1 - wall0).count();

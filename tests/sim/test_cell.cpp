@@ -466,8 +466,8 @@ TEST(CellLayout, DefaultLayoutPassesAndItsFixtureStandsBesideTheCasting) {
   Vec3 lo, hi;
   setup.casting.nominal.bounds(lo, hi);
   const Pose X_CW = spec.X_WC.inverse();
-  EXPECT_NEAR((X_CW * spec.fixtures[0].X_WF.translation()).x(), lo.x() - 0.02, 1e-12);
-  EXPECT_NEAR((X_CW * spec.fixtures[1].X_WF.translation()).x(), hi.x() + 0.02, 1e-12);
+  EXPECT_NEAR((X_CW * spec.fixtures[0].X_WF.translation()).x(), lo.x() - 0.034, 1e-12);
+  EXPECT_NEAR((X_CW * spec.fixtures[1].X_WF.translation()).x(), hi.x() + 0.034, 1e-12);
   for (const auto& f : spec.fixtures)
     EXPECT_NEAR((spec.X_WTable.inverse() * f.X_WF.translation()).z(), f.half_size.z(), 1e-12);
   // The cell written without explicit fixtures has the same blocks.
@@ -551,10 +551,10 @@ TEST(CellLayout, FixtureBlockInTheCastingOrOffTheTableIsRefused) {
   // 0.5 mm into its side wall is refused.
   const Vec3 x_W = spec.fixtures[1].X_WF.linear().col(0);
   sim::CellSpec touching = spec;
-  touching.fixtures[1].X_WF.translation() -= (0.008 + 0.00005) * x_W;
+  touching.fixtures[1].X_WF.translation() -= (0.022 + 0.00005) * x_W;
   EXPECT_NO_THROW(sim::check_cell_layout(touching, nominal));
   sim::CellSpec cutting = spec;
-  cutting.fixtures[1].X_WF.translation() -= (0.008 + 0.0005) * x_W;
+  cutting.fixtures[1].X_WF.translation() -= (0.022 + 0.0005) * x_W;
   refused(cutting, "got them overlapping by 0.");
   // Floating 5 mm above the table top, sunk 5 mm into it, off the table's edge.
   const Vec3 up_W = spec.X_WTable.linear().col(2);

@@ -11,9 +11,11 @@
 #include <vector>
 
 #include "flashtwin/core/errors.hpp"
+#include "flashtwin/core/mesh_query.hpp"
 #include "flashtwin/core/random.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
 #include "flashtwin/planner/kinematics.hpp"
+#include "flashtwin/planner/ik.hpp"
 #include "flashtwin/sim/cell.hpp"
 #include "flashtwin/sim/executor.hpp"
 #include "flashtwin/sim/mujoco_handles.hpp"
@@ -706,4 +708,115 @@ TEST(Executor, ASensorZeroStepAfterTheTareIsReadAsLoad) {
   std::printf("sensor zero step of 60 N: tracking max %.3f mm with compensation from the sensor "
               "(%.3f mm without the step, %.3f mm with the oracle compensation)\n",
               biased.tracking_max / mm, clean.tracking_max / mm, oracle.tracking_max / mm);
+}
+
+// ---- Collisions of the robot with the cell (CellCollision, CollisionMonitor in the executor)
+
+namespace {
+
+// The joint angles that put the TCP at p_W with the tool pointing straight down (nearest home).
+Vector6 tool_down_at(const DefaultCell& cell, const Vec3& p_W) {
+  const Pose X_BW = cell.spec.X_WB.inverse();
+  Pose X_WT = Pose::Identity();
+  X_WT.linear() = Eigen::AngleAxisd(M_PI, Vec3::UnitX()).toRotationMatrix();  // z_T down
+  X_WT.translation() = p_W;
+  planner::IkParams ip;
+  ip.q_ref = cell.robot.home;
+  const planner::IkResult r = planner::ik_tool(cell.robot, X_BW * X_WT, ip);
+  EXPECT_TRUE(r.ok()) << r.message;
+  Vector6 best = cell.robot.home;
+  double d = 1e300;
+  for (const auto& s : r.solutions)
+    if ((s.q - cell.robot.home).norm() < d) d = (s.q - cell.robot.home).norm(), best = s.q;
+  return best;
+}
+
+// A point on the table top 0.2 m beside the casting, lifted by h along the table normal.
+Vec3 beside_casting(const DefaultCell& cell, double h) {
+  return cell.spec.X_WTable * Vec3(0.0, 0.2, h);
+}
+
+// The default cell's collision geometry, its casting's CAD where it truly stands (built once).
+struct CollisionCell {
+  ToolDescription tool;
+  TriangleMesh nominal;
+  std::unique_ptr<MeshBvh> cad;
+  std::unique_ptr<CellCollision> collision;
+};
+const CollisionCell& collision_cell() {
+  static const CollisionCell cc = [] {
+    const auto sc = pipeline::load_scenario(ftest::source_path("scenarios/default.yaml"));
+    CollisionCell c;
+    c.tool = sc.robot.tool;
+    c.nominal = pipeline::setup_cell(sc).casting.nominal;
+    c.cad = std::make_unique<MeshBvh>(c.nominal);
+    c.collision = std::make_unique<CellCollision>(*default_cell().model, *c.cad, default_cell().spec.X_WC);
+    return c;
+  }();
+  return cc;
+}
+
+}  // namespace
+
+TEST(Collision, ClearanceAboveTheTableIsTheBurrsHeightAndInsideItIsADepth) {
+  const DefaultCell& cell = default_cell();
+  const CellCollision& collision = *collision_cell().collision;
+  ASSERT_GT(collision.robot_geoms(), 6u);
+  const MjDataPtr d = make_data(cell.model.get());
+  const auto at = [&](const Vector6& q) {
+    for (int i = 0; i < kNumJoints; ++i)
+      d->qpos[cell.model->jnt_qposadr[mj_name2id(cell.model.get(), mjOBJ_JOINT,
+                                                  ("joint" + std::to_string(i + 1)).c_str())]] = q[i];
+    mj_kinematics(cell.model.get(), d.get());
+    return collision.check(*d);
+  };
+  // The ball tip 30 mm above the top: the burr is what comes nearest, 30 mm from the table.
+  const CollisionHit above = at(tool_down_at(cell, beside_casting(cell, 0.03)));
+  EXPECT_FALSE(above.colliding());
+  EXPECT_EQ(above.robot_geom, "burr");
+  EXPECT_EQ(above.obstacle, "table_top");
+  EXPECT_NEAR(above.clearance, 0.03, 1e-4);
+  // 12 mm into the top: a penetration of that depth.
+  const CollisionHit into = at(tool_down_at(cell, beside_casting(cell, -0.012)));
+  EXPECT_TRUE(into.colliding());
+  EXPECT_EQ(into.obstacle, "table_top");
+  EXPECT_NEAR(into.clearance, -0.012, 1e-4);
+  // The tool's shank 10 mm down into the casting's CAD body: the burr cuts (not a collision),
+  // the shank above it collides with the casting.
+  Vec3 lo, hi;
+  collision_cell().nominal.bounds(lo, hi);
+  const Vec3 top_W = cell.spec.X_WC * Vec3(0.5 * (lo.x() + hi.x()), 0.5 * (lo.y() + hi.y()), hi.z());
+  const Vec3 up_W = cell.spec.X_WC.linear().col(2);
+  bool shank_hit = false;
+  for (double dx = -0.06; dx <= 0.06 && !shank_hit; dx += 0.01) {
+    // Somewhere on the top face (a hole may stand at the centre).
+    const Vec3 p = top_W + cell.spec.X_WC.linear().col(0) * dx - up_W * (collision_cell().tool.length + 0.01);
+    const CollisionHit h = at(tool_down_at(cell, p));
+    shank_hit = h.colliding() && h.robot_geom == "shank" && h.obstacle == "casting";
+  }
+  EXPECT_TRUE(shank_hit) << "no pose over the top face put the shank into the casting";
+}
+
+TEST(Collision, TheExecutorCountsStepsInContactAndNoneOnAClearMove) {
+  const DefaultCell& cell = default_cell();
+  const CellCollision& collision = *collision_cell().collision;
+  const Vector6 q_high = tool_down_at(cell, beside_casting(cell, 0.06));
+  const Vector6 q_low = tool_down_at(cell, beside_casting(cell, 0.02));
+  const Vector6 q_into = tool_down_at(cell, beside_casting(cell, -0.008));
+  ExecParams ep;
+  ep.collisions = &collision;
+  const ToolParams tool = tool_params_from(collision_cell().tool);
+  const ExecutionResult clear =
+      execute_trajectory(*cell.model, quintic(cell, q_high, q_low, 2.0, 0.01), nullptr, tool, {}, ep);
+  EXPECT_EQ(clear.collision_steps, 0u);
+  // What the checks found: never below the burr tip's 20 mm over the top at the end (the
+  // monitor checks a geom again only once it could have come nearer than its last clearance).
+  EXPECT_GE(clear.min_clearance, 0.02 - 1e-3);
+  const ExecutionResult hit =
+      execute_trajectory(*cell.model, quintic(cell, q_high, q_into, 2.0, 0.01), nullptr, tool, {}, ep);
+  EXPECT_GT(hit.collision_steps, 0u);
+  EXPECT_EQ(hit.first_collision.robot_geom, "burr");
+  EXPECT_EQ(hit.first_collision.obstacle, "table_top");
+  EXPECT_GT(hit.first_collision_time, 1.0);  // the tip reaches the top late in the move
+  EXPECT_NEAR(hit.collision_max_depth, 0.008, 1e-3);
 }

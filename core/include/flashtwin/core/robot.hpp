@@ -43,6 +43,17 @@ struct ToolDescription {
   Inertial inertial;             ///< in the flange frame {E}
   double radius = 0.005;         ///< cutting radius of the burr/disc [m]
   double length = 0.02;          ///< cutting length along the tool axis [m]
+  /// The slim end of the tool between the spindle body and the burr, along the tool axis from
+  /// the burr up: the burr's exposed shank, then the collet nut. Defaults: a long-shank carbide
+  /// burr (6 mm shank; such burrs come 100–150 mm overall, standard ones 50–70 mm) standing
+  /// 40 mm out of a straight die grinder's collet nut of 25 mm diameter and 45 mm length: the
+  /// collet clears walls up to 60 mm above the fin with the shank upright beside them (a 25 mm
+  /// shank let the collet touch the default plate's 54 mm ribs). The spindle body (radius
+  /// kSpindleRadius in the cell) takes the rest up to the flange.
+  double shank_radius = 0.003;   ///< [m]
+  double shank_length = 0.040;   ///< [m] exposed, from the burr's end to the collet
+  double collet_radius = 0.0125; ///< [m]
+  double collet_length = 0.045;  ///< [m]
 };
 
 /// The robot's own controller: how it counts its axes (what a KRL PTP, RAPID MoveAbsJ or

@@ -34,10 +34,34 @@ struct Motion {
   sim::JointTrajectory trajectory;  ///< t, q, dq; planned_tcp_W is filled by Execution
   std::vector<Pose> tcp_B;          ///< commanded tool pose per sample in the robot base {B}
   double tool_radius = 0;           ///< [m] the burr it was planned for; 0: the robot's tool
+  /// A move between grinding motions (home → path, path → path, path → home), `path` the
+  /// path it goes to (the last path's for the way home): no cutting planned, its tracking
+  /// counted apart.
+  bool transit = false;
 };
 
 /// A plan's motion: its trajectory and tool poses as planned.
 Motion motion_of(const PlannedPath& plan);
+
+/// One setup's whole job as motions in order: home → the first path's approach, each path,
+/// a transit to the next, the last retract → home (planner::plan_transit against the cell's
+/// obstacles and the casting's CAD where perception put it, never where it truly is).
+struct JobMotions {
+  std::vector<Motion> motions;
+  std::size_t transits = 0;             ///< planned
+  std::size_t lifted = 0;               ///< of them re-planned over a lift
+  std::vector<std::size_t> refused_paths;  ///< paths dropped: no clear transit reaches them
+  std::string first_refusal;            ///< why the first was dropped ("" none)
+  bool home_refused = false;            ///< no clear way home from the last path
+  double transit_time = 0;              ///< [s] program time of the transits
+  double cycle_time = 0;                ///< [s] program time of the whole job
+  double min_clearance = 0;             ///< [m] least planned clearance of a transit
+};
+/// @param X_WC_plan the casting's pose the plan was made for ({W})
+/// @param cad_C the casting's CAD tree in {C}
+/// @throws InputError (the cell's MJCF), ArgumentError (transit settings)
+JobMotions plan_job_motions(const Scenario& sc, const ScenarioScan& ss, const Pose& X_WC_plan,
+                            const MeshBvh& cad_C, const std::vector<PlannedPath>& plans);
 
 /// What execution and the re-scan produced, for the metrics, the report and the video.
 struct ExecutionSummary {
@@ -83,12 +107,16 @@ class Execution {
   Execution(const Scenario& scenario, const sim::Casting& casting);
 
   /// Runs one setup's planned paths, in order, each from rest at its first sample (moves between
-  /// paths are not simulated). Logged path indices are the plans' own plus `path_offset` (a
+  /// paths are not simulated; run_motions with plan_job_motions' motions simulates them). Logged path indices are the plans' own plus `path_offset` (a
   /// second setup's paths follow the first's). Stops at a path whose simulation went unstable
   /// (failed() then). @throws the executor's ArgumentError/InputError (bad parameters, names).
   void run(const ScenarioScan& scan, const std::vector<PlannedPath>& plans,
            const FrameHook& frame_hook = {}, std::size_t path_offset = 0);
-  /// As run, with the motions given (e.g. written programs read back and interpolated).
+  /// As run, with the motions given (e.g. written programs read back and interpolated, or a
+  /// whole job with its transits). A motion that starts where the previous one was planned to
+  /// end continues from the state the arm was left in (the job runs continuously); others start
+  /// at rest. Every step is checked for collisions of the robot with the cell (the true
+  /// casting, its standing flash, fixture, table, scanner: execution.collisions).
   void run_motions(const ScenarioScan& scan, const std::vector<Motion>& motions,
                    const FrameHook& frame_hook = {}, std::size_t path_offset = 0);
 
@@ -108,6 +136,11 @@ class Execution {
   double load_est_sq_ = 0, load_est_n_ = 0;  // the controller's load estimate vs the process force
   std::size_t track_n_ = 0, violations_ = 0, clamped_ = 0, steps_ = 0, executed_ = 0, force_stops_ = 0;
   std::string status_ = "ok";
+  // The whole job: transits run, their worst tracking, program time, collisions.
+  std::size_t transits_ = 0, collision_steps_ = 0;
+  double transit_track_max_ = 0, cycle_time_ = 0, collision_depth_ = 0;
+  double min_clearance_ = sim::CellCollision::kReach;
+  std::string first_collision_;
 };
 
 /// The part as it stands after grinding, for scanning it again: `casting`'s nominal body and

@@ -77,7 +77,7 @@ struct CastingAssets {
 };
 
 /// MJCF text of the whole cell; without assets the casting is a box of the default bounds.
-/// The fixture is spec.fixtures, or when that is empty two blocks 8 mm outside the casting's
+/// The fixture is spec.fixtures, or when that is empty two blocks 22 mm outside the casting's
 /// bounds along its x axis (fixture_blocks without the mesh test).
 std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec,
                       const CastingAssets* casting = nullptr);
@@ -133,8 +133,8 @@ ModelSummary check_mjcf(const std::string& path);
 /// The default fixture of a placed casting: two locating blocks (24 x 60 x 25 mm, names
 /// fixture_left and fixture_right) standing on the table top on either side of the casting
 /// along its x axis (turned with its yaw about the table normal), centred on its y extent and
-/// 8 mm outside its bounds in {C}. A block that would still cut into the placed mesh (a tilted
-/// casting) slides outward along its x axis until it is 8 mm clear of the mesh's part within
+/// 22 mm outside its bounds in {C} (clear of the flash and the burr grinding it). A block that would still cut into the placed mesh (a tilted
+/// casting) slides outward along its x axis until it is 22 mm clear of the mesh's part within
 /// the block's width and height. Reads spec.X_WTable and spec.X_WC; ignores spec.fixtures.
 std::vector<FixtureBlock> fixture_blocks(const CellSpec& spec, const TriangleMesh& nominal_C);
 

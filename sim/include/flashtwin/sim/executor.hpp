@@ -48,6 +48,7 @@
 
 #include "flashtwin/core/robot.hpp"
 #include "flashtwin/core/transform.hpp"
+#include "flashtwin/sim/collision.hpp"
 #include "flashtwin/sim/ft_sensor.hpp"
 #include "flashtwin/sim/process.hpp"
 
@@ -160,6 +161,13 @@ struct ExecParams {
   /// Called after every step with the executor's model and data and the simulated time [s]
   /// (video frames); must not change the state. Empty: none.
   std::function<void(const mjModel*, mjData*, double)> on_step;
+  /// The cell's collision geometry (the twin's measurement, never read by the controller): the
+  /// robot is checked against it at every step (CollisionMonitor) and steps with a collision
+  /// are counted (ExecutionResult::collision_steps). Null: not checked. Kept by reference.
+  const CellCollision* collisions = nullptr;
+  /// Start where a previous motion ended (its ExecutionResult::q_end / dq_end, the whole job
+  /// run continuously) instead of at rest at q_0. Empty: at rest at q_0.
+  std::vector<double> start_qpos, start_qvel;
   /// Fill ExecutionResult::residual (analyze_residual of the grid after the run). A caller
   /// running many trajectories on one grid turns it off and analyses once after the last.
   bool analyze_residual = true;
@@ -240,6 +248,19 @@ struct ExecutionResult {
   std::size_t removal_steps = 0;    ///< remove_material calls
   bool has_residual = false;        ///< residual is filled (a grid was given, analyze_residual on)
   ResidualReport residual;          ///< analyze_residual of the grid after the run
+
+  /// Steps in which a robot geom penetrated an obstacle (ExecParams::collisions; 0 unchecked).
+  std::size_t collision_steps = 0;
+  CollisionHit first_collision;   ///< the first such contact (clearance ≥ 0: none)
+  double first_collision_time = -1;  ///< [s] when (−1: never)
+  double collision_max_depth = 0;    ///< [m] deepest penetration of an obstacle
+  CollisionHit deepest_collision;    ///< the contact of that depth
+  double deepest_collision_time = -1;  ///< [s] when (−1: never)
+  /// [m] least robot–obstacle clearance the checks found (CollisionMonitor checks a geom again
+  /// once it could have come nearer than its last clearance: a lower bound on the clearance is
+  /// kept between checks, not the clearance itself, so this can stay above the true least).
+  double min_clearance = CellCollision::kReach;
+  std::vector<double> q_end, qvel_end;  ///< the model's qpos / qvel at the end (ExecParams::start_*)
 
   std::size_t steps = 0;       ///< MuJoCo steps taken
   double timestep = 0;         ///< [s] the step used
