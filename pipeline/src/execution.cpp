@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <map>
 #include <optional>
 
 #include "flashtwin/core/format.hpp"
@@ -121,25 +122,36 @@ double duration_of(const Motion& m) {
 
 }  // namespace
 
+PlanningWorld::PlanningWorld(const Scenario& sc, const CellSetup& setup, const MeshBvh& cad_C,
+                             const Pose& X_WC_plan, double burr_radius) {
+  sim::CellSpec spec = setup.spec;
+  if (spec.fixtures.empty()) spec.fixtures = sim::fixture_blocks(spec, setup.casting.nominal);
+  model_ = sim::load_mjcf_string(sim::cell_mjcf(sc.robot, spec), "planning_world.xml");
+  data_ = sim::make_data(model_.get());
+  cell_ = std::make_unique<sim::CellCollision>(*model_, cad_C, X_WC_plan, nullptr,
+                                               sim::shank_radius_for(sc.robot.tool, burr_radius));
+  for (int i = 0; i < kNumJoints; ++i)
+    qadr_[i] = model_->jnt_qposadr[sim::require_id(model_.get(), mjOBJ_JOINT, "joint" + std::to_string(i + 1))];
+}
+
+planner::ClearanceFn PlanningWorld::clearance(double reach) {
+  return [this, reach](const Vector6& q) {
+    for (int i = 0; i < kNumJoints; ++i) data_->qpos[qadr_[i]] = q[i];
+    mj_kinematics(model_.get(), data_.get());
+    const sim::CollisionHit hit = cell_->check(*data_, reach);
+    return planner::Clearance{hit.clearance, hit.robot_geom + " – " + hit.obstacle};
+  };
+}
+
 JobMotions plan_job_motions(const Scenario& sc, const ScenarioScan& ss, const Pose& X_WC_plan,
                             const MeshBvh& cad_C, const std::vector<PlannedPath>& plans) {
   JobMotions out;
   out.min_clearance = sim::CellCollision::kReach;
   if (plans.empty()) return out;
   // The planner's world: the cell's obstacles and the CAD where the plan put the casting; no
-  // flash geometry (the transits keep transit_clearance, more than a fin stands).
-  const sim::MjModelPtr model = sim::load_mjcf_file(ss.files.mjcf);
-  const sim::CellCollision cell(*model, cad_C, X_WC_plan);
-  const sim::MjDataPtr data = sim::make_data(model.get());
-  int qadr[kNumJoints];
-  for (int i = 0; i < kNumJoints; ++i)
-    qadr[i] = model->jnt_qposadr[sim::require_id(model.get(), mjOBJ_JOINT, "joint" + std::to_string(i + 1))];
-  const planner::ClearanceFn clearance = [&](const Vector6& q) {
-    for (int i = 0; i < kNumJoints; ++i) data->qpos[qadr[i]] = q[i];
-    mj_kinematics(model.get(), data.get());
-    const sim::CollisionHit hit = cell.check(*data);
-    return planner::Clearance{hit.clearance, hit.robot_geom + " – " + hit.obstacle};
-  };
+  // flash geometry. (Transits are with the mounted burr: a rack burr's own shank is thinner.)
+  PlanningWorld world(sc, ss.setup, cad_C, X_WC_plan, sc.robot.tool.radius);
+  const planner::ClearanceFn clearance = world.clearance();
   planner::TransitParams tp;
   tp.clearance = sc.execution.transit_clearance;
   tp.min_end_clearance = std::min(tp.min_end_clearance, tp.clearance);
@@ -209,9 +221,16 @@ void Execution::run_motions(const ScenarioScan& ss, const std::vector<Motion>& m
   sim::MaterialGrid& grid = *grid_;
   const int setup_index = static_cast<int>(summary_.X_CB.size());
   summary_.X_CB.push_back(ss.setup.spec.X_WC.inverse() * ss.setup.spec.X_WB);
-  // The twin's collision measurement: the casting where it truly stands, its standing flash.
-  const sim::CellCollision cell(*model, grid.nominal(), ss.setup.spec.X_WC, &grid);
-  ep.collisions = &cell;
+  // The twin's collision measurement: the casting where it truly stands, its standing flash;
+  // one per burr (a rack burr stands on its own, thinner shank).
+  std::map<double, std::unique_ptr<sim::CellCollision>> cells;
+  const auto cell_for = [&](double burr_radius) -> const sim::CellCollision* {
+    auto& c = cells[burr_radius];
+    if (!c)
+      c = std::make_unique<sim::CellCollision>(*model, grid.nominal(), ss.setup.spec.X_WC, &grid,
+                                               sim::shank_radius_for(sc_.robot.tool, burr_radius));
+    return c.get();
+  };
   const Motion* previous = nullptr;
   sim::ExecutionResult last;
   for (const Motion& motion : motions) {
@@ -234,6 +253,7 @@ void Execution::run_motions(const ScenarioScan& ss, const std::vector<Motion>& m
     // The burr this path was planned for (a rack burr after a tool change; same length).
     sim::ToolParams path_tool = tool;
     if (motion.tool_radius > 0) path_tool.radius = motion.tool_radius;
+    ep.collisions = cell_for(path_tool.radius);
     path_tool.radius += sc_.faults.tool_radius_error;  // a drill: not the burr planned for
     // The flange sensor's noise, offset and drift: one stream per motion of this run.
     ep.sensor_seed = sc_.seed * 0x9E3779B97F4A7C15ull + 0x5E15E0ull + 131 * static_cast<std::uint64_t>(k) +

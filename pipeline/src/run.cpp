@@ -10,7 +10,9 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <iomanip>
+#include <map>
 #include <memory>
 #include <optional>
 #include <unistd.h>
@@ -472,13 +474,15 @@ std::vector<Curve> curves_of(const perception::DetectionResult& det) {
 
 // A path's plan, in pieces when the wrist cannot follow it in one go (plan_in_pieces), with a
 // smaller burr from the rack when the hole is too narrow for the mounted one.
-std::vector<planner::GrindResult> plan_path(const Scenario& sc, const Pose& X_BC_plan,
-                                            const planner::GrindPath& gp, std::size_t k,
-                                            int& tool_changes) {
+// `clearance_for(r)`: the planner's world with a burr of radius r (its shank).
+std::vector<planner::GrindResult> plan_path(
+    const Scenario& sc, planner::GrindParams P, const Pose& X_BC_plan, const planner::GrindPath& gp,
+    std::size_t k, int& tool_changes, const std::function<planner::ClearanceFn(double)>& clearance_for) {
   constexpr int kMaxPieces = 8;
   std::vector<planner::GrindResult> pieces(1);
   try {
-    pieces = plan_in_pieces(sc.robot, X_BC_plan, gp, sc.grind, kMaxPieces);
+    if (sc.clearance_check) P.clearance = clearance_for(sc.robot.tool.radius);
+    pieces = plan_in_pieces(sc.robot, X_BC_plan, gp, P, kMaxPieces);
     // A hole too narrow for the mounted burr: the largest burr of the rack that fits.
     if (pieces.front().status == planner::GrindStatus::kToolTooLarge) {
       std::vector<double> rack = sc.tool_rack;
@@ -487,7 +491,8 @@ std::vector<planner::GrindResult> plan_path(const Scenario& sc, const Pose& X_BC
         if (r >= sc.robot.tool.radius) continue;
         RobotModel smaller = sc.robot;
         smaller.tool.radius = r;
-        auto ps = plan_in_pieces(smaller, X_BC_plan, gp, sc.grind, kMaxPieces);
+        if (sc.clearance_check) P.clearance = clearance_for(r);
+        auto ps = plan_in_pieces(smaller, X_BC_plan, gp, P, kMaxPieces);
         if (ps.front().status == planner::GrindStatus::kToolTooLarge) continue;
         spdlog::info("path {}: burr of radius {:.1f} mm from the tool rack ({})", k, r * 1e3,
                      ps.front().ok() ? "planned" : ps.front().message);
@@ -542,11 +547,24 @@ Plans plan_setup(const Scenario& sc, const CellSetup& setup, const Perception& p
   // motion of the burr relative to the part (the arm's own joints differ by the offset).
   const Pose X_BC_plan = setup.spec.X_WB.inverse() * setup.spec.X_WM * perc.X_CM_est.inverse() *
                          sc.faults.part_offset_C.inverse();
+  // The worktable's top, where the plan puts the part: the burr keeps clear of it.
+  planner::GrindParams P = sc.grind;
+  const Pose X_CTable = (setup.spec.X_WB * X_BC_plan).inverse() * setup.spec.X_WTable;
+  P.floor_C = std::make_pair(Vec3(X_CTable.translation()), Vec3(X_CTable.linear().col(2)));
+  // Every sample's arm and tool clear of the cell and of the CAD where perception put it.
+  const MeshBvh cad_C(setup.casting.nominal);
+  const Pose X_WC_plan = setup.spec.X_WB * X_BC_plan;
+  std::map<double, std::unique_ptr<PlanningWorld>> worlds;
+  const auto clearance_for = [&](double burr_radius) {
+    auto& w = worlds[burr_radius];
+    if (!w) w = std::make_unique<PlanningWorld>(sc, setup, cad_C, X_WC_plan, burr_radius);
+    return w->clearance(std::max(2e-3, 2 * sc.grind.min_clearance));
+  };
   double vmax = 0, amax = 0, manip = 1e300, total_time = 0, length = 0;
   int planned = 0, skipped = 0, tool_changes = 0, path_pieces = 0;
   json plans = json::array();
   for (std::size_t k = 0; k < det.paths.size(); ++k) {
-    const auto pieces = plan_path(sc, X_BC_plan, grind_path_of(det.paths[k]), k, tool_changes);
+    const auto pieces = plan_path(sc, P, X_BC_plan, grind_path_of(det.paths[k]), k, tool_changes, clearance_for);
     const planner::GrindResult& g = pieces.front();
     json pj = {{"path", k}, {"status", planner::to_string(g.status)}, {"message", g.message}};
     if (pieces.size() > 1) {

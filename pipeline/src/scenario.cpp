@@ -398,6 +398,8 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     g.tilt = pl2.get_double("tilt", -0.8, 0.8, g.tilt);
     g.max_depth_of_cut = pl2.get_double("max_depth_of_cut", 1e-5, 0.05, g.max_depth_of_cut);
     g.finish_depth = pl2.get_double("finish_depth", 0.0, 0.01, g.finish_depth);
+    sc.clearance_check = pl2.get_bool("clearance_check", sc.clearance_check);
+    g.min_clearance = pl2.get_double("min_clearance", 0.0, 0.05, g.min_clearance);
     g.lead_clearance = pl2.get_double("lead_clearance", 0.0, 0.01, g.lead_clearance);
     g.roughing_feed = pl2.get_double("roughing_feed", 1e-4, 1.0, g.roughing_feed);
     g.limit_margin = pl2.get_double("limit_margin", 0.0, 0.2, g.limit_margin);

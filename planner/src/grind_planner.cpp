@@ -31,6 +31,8 @@ std::string to_string(GrindStatus status) {
       return "timing_failed";
     case GrindStatus::kToolTooLarge:
       return "tool_too_large";
+    case GrindStatus::kCollision:
+      return "collision";
   }
   return "unknown";
 }
@@ -59,6 +61,8 @@ std::string to_string(ReorientReason reason) {
       return "unreachable";
     case ReorientReason::kDiscontinuous:
       return "discontinuous";
+    case ReorientReason::kCollision:
+      return "collision";
   }
   return "unknown";
 }
@@ -99,7 +103,7 @@ struct Dev {
 };
 
 // Per-sample IK outcome while following one branch.
-enum class NodeStatus { kOk, kLowManip, kUnreachable, kJointLimit, kJump, kBranchLost };
+enum class NodeStatus { kOk, kLowManip, kUnreachable, kJointLimit, kJump, kBranchLost, kCollision };
 
 struct Node {
   NodeStatus status = NodeStatus::kUnreachable;
@@ -107,8 +111,8 @@ struct Node {
   Vector6 q = Vector6::Zero();
   double manip = 0;
   int joint = -1;    // kJointLimit: the joint; kJump: the joint that jumps
-  double value = 0;  // kJointLimit: excess [rad]; kJump: the step [rad]
-  std::string info;  // IK message for kUnreachable
+  double value = 0;  // kJointLimit: excess [rad]; kJump: the step [rad]; kCollision: clearance [m]
+  std::string info;  // IK message for kUnreachable; what comes near for kCollision
 };
 
 // Severity for naming a bad range's cause (the first sample of the most severe kind).
@@ -117,6 +121,7 @@ int severity(NodeStatus s) {
     case NodeStatus::kUnreachable:
       return 4;
     case NodeStatus::kJointLimit:
+    case NodeStatus::kCollision:
       return 3;
     case NodeStatus::kLowManip:
       return 2;  // jumps and lost branches are its usual symptoms
@@ -138,6 +143,8 @@ ReorientReason reason_of(NodeStatus s) {
       return ReorientReason::kUnreachable;
     case NodeStatus::kJointLimit:
       return ReorientReason::kJointLimit;
+    case NodeStatus::kCollision:
+      return ReorientReason::kCollision;
     default:
       return ReorientReason::kDiscontinuous;
   }
@@ -151,6 +158,8 @@ GrindStatus status_of(NodeStatus s) {
       return GrindStatus::kUnreachable;
     case NodeStatus::kJointLimit:
       return GrindStatus::kJointLimit;
+    case NodeStatus::kCollision:
+      return GrindStatus::kCollision;
     default:
       return GrindStatus::kDiscontinuous;
   }
@@ -191,8 +200,26 @@ struct Context {
     // turned into the wall's tangent plane (the shank leans with the wall).
     const double cb = std::cos(g.slope), sb = std::sin(g.slope);
     const Vec3 n_wall = cb * g.n + sb * f, f_wall = cb * f - sb * g.n;
-    Pose X = grind_tool_pose(g.p, n_wall, g.t, f_wall, x_ref, g.extra, lead + g.dir * d.lead, tilt + d.tilt,
-                             spin0 + d.spin, radius, length, tip_depth, off);
+    const double l = lead + g.dir * d.lead, tl = tilt + d.tilt, sp = spin0 + d.spin;
+    Pose X = grind_tool_pose(g.p, n_wall, g.t, f_wall, x_ref, g.extra, l, tl, sp, radius, length, tip_depth, off);
+    // Above the floor: the burr slides up its axis where its lowest point would come nearer the
+    // floor than the clearance (a fin low on the casting), not above the depth that keeps the fin
+    // on the burr's straight side.
+    if (P.floor_C) {
+      const auto& [o, N] = *P.floor_C;
+      const Vec3 z = X.linear().col(2);
+      const double up = -z.dot(N);  // the tip's rise per unit of less tip depth
+      if (up > 0.1) {
+        const Vec3 tip = X.translation();
+        const double low = std::min((tip - radius * z - o).dot(N), (tip - length * z - o).dot(N)) - radius;
+        const double short_by = P.floor_clearance - low;
+        const double min_depth = std::min(tip_depth, radius + 1e-3);
+        if (short_by > 0) {
+          const double depth = std::max(min_depth, tip_depth - short_by / up);
+          X = grind_tool_pose(g.p, n_wall, g.t, f_wall, x_ref, g.extra, l, tl, sp, radius, length, depth, off);
+        }
+      }
+    }
     X.translation() += g.lift * f;
     return X;
   }
@@ -239,6 +266,14 @@ struct Context {
       node.manip = manipulability(robot, node.q);
       if (node.status == NodeStatus::kOk && !(node.manip >= P.manipulability_threshold))
         node.status = NodeStatus::kLowManip;
+      if (node.status == NodeStatus::kOk && P.clearance) {
+        const Clearance c = P.clearance(node.q);
+        if (c.distance < P.min_clearance) {
+          node.status = NodeStatus::kCollision;
+          node.value = c.distance;
+          node.info = c.what;
+        }
+      }
       return node;
     }
     // No solution on this branch within the limits: find out why.
@@ -288,7 +323,7 @@ struct Context {
     for (std::size_t i = a; i <= b; ++i) {
       Node node = solve(i, dev[i], spin0, branch, ref, i == 0);
       if (node.has_q && (node.status == NodeStatus::kOk || node.status == NodeStatus::kLowManip ||
-                         node.status == NodeStatus::kJump))
+                         node.status == NodeStatus::kJump || node.status == NodeStatus::kCollision))
         ref = node.q;
       const bool bad = node.status != NodeStatus::kOk;
       out[i - a] = std::move(node);
@@ -1379,6 +1414,11 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
         res.failed_excess = nd.value;
         why = strf("joint %d jumps by %.3f rad (more than %.3f) between samples", nd.joint + 1,
                    nd.value, P.max_joint_jump);
+        break;
+      case NodeStatus::kCollision:
+        res.failed_excess = nd.value;
+        why = strf("%s within %.2f mm (needs %.2f mm)", nd.info.c_str(), nd.value * 1e3,
+                   P.min_clearance * 1e3);
         break;
       default:
         why = "configuration branch lost: " + nd.info;

@@ -301,7 +301,7 @@ std::string arm_mjcf(const RobotModel& robot, const Pose& X_WB, const CellSpec& 
      << "group=\"3\"/>\n"
      << tool_cylinder("spindle", 0, spindle_end, kSpindleRadius, indent)
      << tool_cylinder("collet", spindle_end, collet_end, tool.collet_radius, indent)
-     << tool_cylinder("shank", collet_end, burr_top, tool.shank_radius, indent)
+     << tool_cylinder("shank", collet_end, burr_top, shank_radius_for(tool, tool.radius), indent)
      << indent << "  <geom name=\"burr\" type=\"capsule\" fromto=\"" << vec3_string(tool.X_ET * Vec3(0, 0, -tool.length)) << " "
      << vec3_string(tool.X_ET * Vec3(0, 0, -tool.radius)) << "\" size=\"" << num(tool.radius)
      << "\" contype=\"0\" conaffinity=\"0\" group=\"1\" material=\"burr\"/>\n"
@@ -594,6 +594,10 @@ bool is_mesh_part(const std::string& name, const std::string& base) {
   if (name.size() <= prefix.size() || name.compare(0, prefix.size(), prefix) != 0) return false;
   return std::all_of(name.begin() + static_cast<std::ptrdiff_t>(prefix.size()), name.end(),
                      [](unsigned char ch) { return std::isdigit(ch) != 0; });
+}
+
+double shank_radius_for(const ToolDescription& tool, double burr_radius) {
+  return std::max(1e-4, std::min(tool.shank_radius, burr_radius - 1e-3));
 }
 
 std::vector<FixtureBlock> fixture_blocks(const CellSpec& spec, const TriangleMesh& nominal_C) {

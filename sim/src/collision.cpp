@@ -91,7 +91,7 @@ double cylinder_distance(const Vec3& q, double R, double hl) {
 }  // namespace
 
 CellCollision::CellCollision(const mjModel& m, const MeshBvh& casting_C, const Pose& X_WC,
-                             const MaterialGrid* flash)
+                             const MaterialGrid* flash, double shank_radius)
     : casting_C_(casting_C), X_CW_(X_WC.inverse()), flash_(flash) {
   const int link1 = require_id(&m, mjOBJ_BODY, "link1");
   const int link3 = mj_name2id(&m, mjOBJ_BODY, "link3");
@@ -100,8 +100,9 @@ CellCollision::CellCollision(const mjModel& m, const MeshBvh& casting_C, const P
   for (int g = 0; g < m.ngeom; ++g) {
     const int b = m.geom_bodyid[g];
     const int type = m.geom_type[g];
-    const Vec3 size(m.geom_size[3 * g], m.geom_size[3 * g + 1], m.geom_size[3 * g + 2]);
+    Vec3 size(m.geom_size[3 * g], m.geom_size[3 * g + 1], m.geom_size[3 * g + 2]);
     std::string name = name_of(m, mjOBJ_GEOM, g);
+    if (name == "shank" && shank_radius >= 0) size[0] = shank_radius;
     if (below(m, b, link1)) {
       RobotGeom rg;
       rg.geom = g;
@@ -132,7 +133,7 @@ CellCollision::CellCollision(const mjModel& m, const MeshBvh& casting_C, const P
     o.type = type;
     o.size = size;
     o.name = name.empty() ? name_of(m, mjOBJ_BODY, b) : name;
-    o.under_base = b == base || name == "pedestal";
+    o.under_base = b == base || name == "pedestal" || name == "floor";
     obstacles_.push_back(std::move(o));
   }
   if (robot_.empty()) throw InputError("model: expected robot geoms on body 'link1' and below");
@@ -160,15 +161,15 @@ double CellCollision::obstacle_distance(const Obstacle& o, const Vec3& p_W) cons
   }
 }
 
-CollisionHit CellCollision::check_geom(const mjData& d, std::size_t k) const {
+CollisionHit CellCollision::check_geom(const mjData& d, std::size_t k, double reach) const {
   const RobotGeom& rg = robot_[k];
   const Pose X_WG = geom_pose(d, rg.geom);
   CollisionHit best;
-  best.clearance = kReach;
+  best.clearance = reach;
   best.robot_geom = rg.name;
-  // Broad phase: obstacles (and the casting) farther than extent + kReach from the geom's
-  // origin cannot come nearer than kReach.
-  const double far = rg.extent + kReach;
+  // Broad phase: obstacles (and the casting) farther than extent + reach from the geom's
+  // origin cannot come nearer than reach.
+  const double far = rg.extent + reach;
   std::vector<const Obstacle*> near;
   for (const Obstacle& o : obstacles_) {
     if (o.under_base && rg.on_base_links) continue;
@@ -184,10 +185,10 @@ CollisionHit CellCollision::check_geom(const mjData& d, std::size_t k) const {
       if (c < best.clearance) best = {c, rg.name, o->name, p_W};
     }
     if (!casting_near) continue;
-    const double reach = std::min(kReach, best.clearance) + ball.radius;
-    if (casting_box_W_.exteriorDistance(p_W) > reach) continue;
+    const double within = best.clearance + ball.radius;
+    if (casting_box_W_.exteriorDistance(p_W) > within) continue;
     const Vec3 p_C = X_CW_ * p_W;
-    const ClosestPoint cp = casting_C_.closest(p_C, reach, hint);
+    const ClosestPoint cp = casting_C_.closest(p_C, within, hint);
     if (cp.triangle < 0) continue;
     hint = cp.triangle;
     const Vec3 n = casting_C_.mesh().triangle_normal(static_cast<std::size_t>(cp.triangle));
@@ -219,11 +220,11 @@ CollisionHit CellCollision::check_flash(const mjData& d, std::size_t k) const {
   return hit;
 }
 
-CollisionHit CellCollision::check(const mjData& d) const {
+CollisionHit CellCollision::check(const mjData& d, double reach) const {
   CollisionHit best;
-  best.clearance = kReach;
+  best.clearance = reach;
   for (std::size_t k = 0; k < robot_.size(); ++k) {
-    CollisionHit h = check_geom(d, k);
+    CollisionHit h = check_geom(d, k, reach);
     if (h.clearance < best.clearance) best = std::move(h);
   }
   return best;

@@ -17,12 +17,14 @@
 #include "flashtwin/planner/grind_planner.hpp"
 #include "flashtwin/sim/casting.hpp"
 #include "flashtwin/sim/executor.hpp"
+#include "flashtwin/sim/mujoco_handles.hpp"
 #include "flashtwin/sim/process.hpp"
 
 namespace flashtwin::pipeline {
 
 struct Scenario;
 struct ScenarioScan;
+struct CellSetup;
 
 /// A planned path: its index among the detected paths and its plan (ok()).
 using PlannedPath = std::pair<std::size_t, planner::GrindResult>;
@@ -42,6 +44,32 @@ struct Motion {
 
 /// A plan's motion: its trajectory and tool poses as planned.
 Motion motion_of(const PlannedPath& plan);
+
+/// The planner's world: the cell's obstacles (robot base, table, fixture, scanner head) from
+/// its layout and the casting's CAD where perception put it; no flash (the planner knows none).
+/// Its clearance function is what plan_grind and plan_transit check configurations against
+/// (sim::CellCollision: the arm's links and the tool but the burr's cut). Not thread-safe.
+class PlanningWorld {
+ public:
+  /// @param cad_C the casting's CAD tree in {C}, kept by reference
+  /// @param X_WC_plan where the plan puts the casting ({W})
+  /// @param burr_radius the burr planned with (its shank: sim::shank_radius_for)
+  /// @throws InputError (the cell's MJCF)
+  PlanningWorld(const Scenario& sc, const CellSetup& setup, const MeshBvh& cad_C,
+                const Pose& X_WC_plan, double burr_radius);
+  PlanningWorld(const PlanningWorld&) = delete;
+  PlanningWorld& operator=(const PlanningWorld&) = delete;
+  /// The robot's clearance at a configuration (valid while this object lives); nothing nearer
+  /// than `reach` reads as `reach` (a small reach is much faster: plan_grind only asks whether a
+  /// sample comes within its min_clearance).
+  planner::ClearanceFn clearance(double reach = sim::CellCollision::kReach);
+
+ private:
+  sim::MjModelPtr model_;
+  sim::MjDataPtr data_;
+  std::unique_ptr<sim::CellCollision> cell_;
+  int qadr_[kNumJoints] = {};
+};
 
 /// One setup's whole job as motions in order: home → the first path's approach, each path,
 /// a transit to the next, the last retract → home (planner::plan_transit against the cell's

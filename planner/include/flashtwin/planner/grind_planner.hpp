@@ -29,6 +29,7 @@
 
 #include "flashtwin/core/plot.hpp"
 #include "flashtwin/core/robot.hpp"
+#include "flashtwin/planner/clearance.hpp"
 #include "flashtwin/planner/ik.hpp"
 #include "flashtwin/planner/timing.hpp"
 
@@ -71,6 +72,18 @@ struct GrindParams {
   double tilt = 0;                  ///< tilt angle (shank away from the wall) [rad]
   /// Axial distance from the fin mid-plane crossing to the tip [m]; unset: tool length / 2.
   std::optional<double> tip_depth;
+  /// The surface the casting stands on (the worktable's top), as a point and its upward unit
+  /// normal in {C}; the burr keeps floor_clearance above it: where a fin stands lower than the
+  /// tip depth, the burr slides up its axis (down to the tip depth that still keeps the fin on
+  /// the burr's straight side: its radius and 1 mm above the tip). Unset: no floor.
+  std::optional<std::pair<Vec3, Vec3>> floor_C;
+  double floor_clearance = 1e-3;  ///< [m]
+  /// The arm and the tool (but the burr, which cuts) against the cell and the casting's CAD at
+  /// each sample's configuration: a sample nearer than min_clearance is bad and re-oriented like
+  /// one beyond a joint limit (spin, lead, lean), else the path fails with kCollision. Empty:
+  /// not checked.
+  ClearanceFn clearance;
+  double min_clearance = 0.3e-3;  ///< [m]
   double max_depth_of_cut = 0.002;  ///< largest radial depth of cut of a roughing pass [m]
   /// Radial depth of the last (finishing) pass when the fin height is known [m]: the roughing
   /// passes take the fin down to this, the last pass cuts it to the wall under a light load,
@@ -164,10 +177,12 @@ enum class GrindStatus {
   kTimingFailed,   ///< time_parametrize refused the joint path (see message)
   kToolTooLarge,   ///< a hole (closed loop or open arc of ≥ 45°, wall facing inward) narrower
                    ///< than the burr + max(lead_clearance, 0.2 mm): no room to step in
+  kCollision,      ///< the arm or tool comes nearer the cell than GrindParams::min_clearance
+                   ///< for every branch and re-orientation
 };
 
 /// Why a range of samples was re-oriented (or could not be).
-enum class ReorientReason { kSingular, kJointLimit, kUnreachable, kDiscontinuous };
+enum class ReorientReason { kSingular, kJointLimit, kUnreachable, kDiscontinuous, kCollision };
 
 /// A range of samples that needed a re-orientation, and the one applied (at full weight inside
 /// the range; faded in and out over blend_length around it).

@@ -14,17 +14,10 @@
 #include <vector>
 
 #include "flashtwin/core/robot.hpp"
+#include "flashtwin/planner/clearance.hpp"
 #include "flashtwin/planner/timing.hpp"
 
 namespace flashtwin::planner {
-
-/// What a configuration's clearance check found.
-struct Clearance {
-  double distance = 0;  ///< [m] signed: < 0 a penetration
-  std::string what;     ///< e.g. "spindle – fixture_1"
-};
-/// Clearance of the robot at a configuration (the caller's world model).
-using ClearanceFn = std::function<Clearance(const Vector6& q)>;
 
 /// Options of plan_transit (fields named `transit.<field>` in error messages).
 struct TransitParams {

@@ -76,6 +76,11 @@ struct CastingAssets {
   Vec3 lo = Vec3(-0.1, -0.1, 0), hi = Vec3(0.1, 0.1, 0.05);  ///< nominal bounds in {C} [m]
 };
 
+/// The radius of the shank a burr of `burr_radius` stands on: the tool's shank_radius, but at
+/// most the burr's radius less 1 mm (small burrs come on thinner shanks, 3 mm for heads under
+/// 6 mm), so the shank stays off the wall the burr grinds.
+double shank_radius_for(const ToolDescription& tool, double burr_radius);
+
 /// MJCF text of the whole cell; without assets the casting is a box of the default bounds.
 /// The fixture is spec.fixtures, or when that is empty two blocks 22 mm outside the casting's
 /// bounds along its x axis (fixture_blocks without the mesh test).

@@ -19,7 +19,8 @@
 //   two surface points by up to about ¼ spacing undetected (≤ 2.5 mm on the motor housings,
 //   ≤ 1.1 mm on the spindle). Flash is checked against surface points only (the spindle and the
 //   motor housings; capsules see the CAD body only).
-// The arm's links 1 and 2 are not checked against the base housing and pedestal they stand on.
+// The arm's links 1 and 2 are not checked against the base housing, pedestal and floor they
+// stand on.
 #include <mujoco/mujoco.h>
 
 #include <string>
@@ -57,16 +58,19 @@ class CellCollision {
   /// @param flash the material grid whose FLASH voxels count as obstacles (kept by reference),
   ///        or null (a planner: it knows no flash geometry)
   /// @throws InputError when the model has no body `link1`
+  /// @param shank_radius ≥ 0: the radius of the tool's `shank` geom instead of the model's (a
+  ///        burr from the tool rack on its own shank); < 0: the model's
   CellCollision(const mjModel& m, const MeshBvh& casting_C, const Pose& X_WC,
-                const MaterialGrid* flash = nullptr);
+                const MaterialGrid* flash = nullptr, double shank_radius = -1);
 
   /// Number of robot geoms checked.
   std::size_t robot_geoms() const { return robot_.size(); }
   /// The closest approach of robot geom k (0 ≤ k < robot_geoms()) to any obstacle, with the
-  /// geom posed as in d (geom_xpos / geom_xmat: after mj_kinematics or a step).
-  CollisionHit check_geom(const mjData& d, std::size_t k) const;
+  /// geom posed as in d (geom_xpos / geom_xmat: after mj_kinematics or a step); nothing nearer
+  /// than `reach` (≤ kReach): clearance `reach` (a smaller reach is faster).
+  CollisionHit check_geom(const mjData& d, std::size_t k, double reach = kReach) const;
   /// The closest approach of the whole robot.
-  CollisionHit check(const mjData& d) const;
+  CollisionHit check(const mjData& d, double reach = kReach) const;
   /// Only the flash voxels against geom k's surface points (cheap: grid look-ups); clearance 0
   /// with obstacle "flash" when a point lies in standing flash, else kReach.
   CollisionHit check_flash(const mjData& d, std::size_t k) const;
