@@ -550,7 +550,7 @@ Plans plan_setup(const Scenario& sc, const CellSetup& setup, const Perception& p
   // The worktable's top, where the plan puts the part: the burr keeps clear of it.
   planner::GrindParams P = sc.grind;
   const Pose X_CTable = (setup.spec.X_WB * X_BC_plan).inverse() * setup.spec.X_WTable;
-  P.floor_C = std::make_pair(Vec3(X_CTable.translation()), Vec3(X_CTable.linear().col(2)));
+  if (sc.floor_check) P.floor_C = std::make_pair(Vec3(X_CTable.translation()), Vec3(X_CTable.linear().col(2)));
   // Every sample's arm and tool clear of the cell and of the CAD where perception put it.
   const MeshBvh cad_C(setup.casting.nominal);
   const Pose X_WC_plan = setup.spec.X_WB * X_BC_plan;

@@ -400,6 +400,8 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     g.finish_depth = pl2.get_double("finish_depth", 0.0, 0.01, g.finish_depth);
     sc.clearance_check = pl2.get_bool("clearance_check", sc.clearance_check);
     g.min_clearance = pl2.get_double("min_clearance", 0.0, 0.05, g.min_clearance);
+    sc.floor_check = pl2.get_bool("floor_check", sc.floor_check);
+    g.floor_clearance = pl2.get_double("floor_clearance", 0.0, 0.05, g.floor_clearance);
     g.lead_clearance = pl2.get_double("lead_clearance", 0.0, 0.01, g.lead_clearance);
     g.roughing_feed = pl2.get_double("roughing_feed", 1e-4, 1.0, g.roughing_feed);
     g.limit_margin = pl2.get_double("limit_margin", 0.0, 0.2, g.limit_margin);

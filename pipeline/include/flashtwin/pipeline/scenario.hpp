@@ -130,6 +130,9 @@ struct Scenario {
   /// `planning.clearance_check`: every grinding sample's arm and tool (but the burr) checked
   /// against the cell and the CAD where perception put it (GrindParams::clearance).
   bool clearance_check = false;
+  /// `planning.floor_check`: the burr keeps planning.floor_clearance above the worktable's top
+  /// (GrindParams::floor_C).
+  bool floor_check = true;
   /// `tool_rack:` radii [m] of the ball burrs the cell's tool changer holds besides the mounted
   /// one (same length): a path in a hole too narrow for the mounted burr is planned with the
   /// largest rack burr that fits (a tool change in the job). Default: 8 and 6 mm burrs.
