@@ -129,7 +129,13 @@ std::vector<Vector6> rrt_connect(const RobotModel& robot, const Vector6& qa, con
   Tree* other = &tb;
   for (int it = 0; it < P.rrt_iterations; ++it) {
     Vector6 q_rand;
-    for (int j = 0; j < kNumJoints; ++j) q_rand[j] = rng.uniform(robot.limits[j].lower, robot.limits[j].upper);
+    // Samples near the ends: within rrt_margin of the box their joints span (and the limits),
+    // so a route does not swing the arm round through far configurations.
+    for (int j = 0; j < kNumJoints; ++j) {
+      const double lo = std::max(robot.limits[j].lower, std::min(qa[j], qb[j]) - P.rrt_margin);
+      const double hi = std::min(robot.limits[j].upper, std::max(qa[j], qb[j]) + P.rrt_margin);
+      q_rand[j] = rng.uniform(lo, hi);
+    }
     const int i_new = extend(*grow, q_rand);
     if (i_new >= 0) {
       // Connect: the other tree steps towards the new node until it reaches it or is blocked.

@@ -24,18 +24,22 @@ struct TransitParams {
   /// [m] clearance the move keeps from everything; where an end stands nearer than twice this
   /// (the start of a path beside its fin), half that end's clearance.
   double clearance = 0.015;
-  /// [m] the least clearance an end may have (nearer: the transit is refused).
-  double min_end_clearance = 5e-4;
+  /// [m] the least clearance an end may have (nearer: the transit is refused). 0: an end only
+  /// must not penetrate (a grinding path may start with its collet a hair off a wall; the path
+  /// itself is what then touches, and execution measures it).
+  double min_end_clearance = 0;
   /// [m] lifts tried, in turn, when the direct move is not clear.
   std::vector<double> lifts{0.1, 0.2, 0.35};
   Vec3 up_B = Vec3::UnitZ();  ///< the cell's up direction in the robot base frame {B}
   /// Parking configurations (e.g. the robot's home) a transit may pass through when neither the
   /// direct move nor a lift is clear: tried in turn, straight and over each lift.
   std::vector<Vector6> via;
-  /// Last resort: RRT-connect in joint space (within the joint limits) for at most this many
+  /// Last resort: RRT-connect in joint space (near the ends, within the joint limits) for at most this many
   /// iterations, then shortcut; 0: none.
   int rrt_iterations = 2000;
   double rrt_step = 0.3;           ///< [rad] longest extension of a tree
+  /// [rad] the sampler draws each joint within this margin of the span of the two ends
+  double rrt_margin = 1.0;
   std::uint64_t rrt_seed = 0x7A5;  ///< the sampler's seed (the same transit, the same route)
   /// Fraction of each joint's velocity and acceleration limits the moves use.
   double speed_ratio = 0.25;
