@@ -154,6 +154,7 @@ JobMotions plan_job_motions(const Scenario& sc, const ScenarioScan& ss, const Po
   const planner::ClearanceFn clearance = world.clearance();
   planner::TransitParams tp;
   tp.clearance = sc.execution.transit_clearance;
+  tp.speed_ratio = sc.execution.transit_speed;
   tp.min_end_clearance = std::min(tp.min_end_clearance, tp.clearance);
   tp.up_B = ss.setup.spec.X_WB.linear().transpose() * Vec3::UnitZ();
   tp.via = {sc.robot.home};

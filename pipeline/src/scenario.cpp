@@ -457,6 +457,7 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     e.rescan = ex.get_bool("rescan", e.rescan);
     e.transits = ex.get_bool("transits", e.transits);
     e.transit_clearance = ex.get_double("transit_clearance", 1e-3, 0.2, e.transit_clearance);
+    e.transit_speed = ex.get_double("transit_speed", 0.01, 1.0, e.transit_speed);
     e.exec.settle_time = ex.get_double("settle_time", 0, 10, e.exec.settle_time);
     e.exec.max_force = ex.get_double("max_force", 0, 1e7, e.exec.max_force);
     e.exec.feedforward = ex.get_bool("feedforward", e.exec.feedforward);

@@ -69,6 +69,8 @@ struct ExecutionSettings {
   /// the fixture, table and scanner are known exactly; the flash is not known to the planner
   /// and its contacts are measured in execution)
   double transit_clearance = 0.005;
+  /// `transit_speed`: fraction of each joint's velocity and acceleration limits the transits use
+  double transit_speed = 0.25;
   sim::ExecParams exec;           ///< servo loop, admittance force control
   sim::MaterialParams material;   ///< voxel grid of the flash and the body band
   sim::ForceParams force;         ///< grinding force model
