@@ -421,7 +421,7 @@ TEST(Cli, RunIsDeterministicAndWritesTheClosedLoopOutputs) {
   // The default scenario end to end, twice with the same seed, on 1 and on 2 threads:
   // identical metrics (timings aside), all DESIGN.md keys present, the report self-contained.
   // (It ran the user-mesh scenario until its seed-11 part failed on the collet touching the
-  // dome, the path it left and the transits it could not leave cleanly: README "The whole job".)
+  // bracket's upright leg, the path it left and the transits it could not leave cleanly: README "The whole job".)
   const std::string a = ftest::temp_dir("run_a"), b = ftest::temp_dir("run_b");
   const std::string sc = ftest::source_path("scenarios/default.yaml");
   const CliRun ra = run("-q run " + sc + " -o " + a + " --threads 1");

@@ -23,7 +23,7 @@ TEST(VideoRun, FollowCameraFilmsTheRunWithItsOverlay) {
                          " --set video.height=240 --set video.fps=10 >" + dir + "/run.log 2>&1");
   const auto m = nlohmann::json::parse(slurp(dir + "/metrics.json"));
   // The video's time is no quality: the exit code is the part's verdict alone (seed 11's collet
-  // touches the dome, a failed part: README "The whole job").
+  // touches the bracket's leg, a failed part: README "The whole job").
   EXPECT_EQ(code, m["quality.pass"].get<bool>() ? 0 : 1) << slurp(dir + "/run.log");
   // 3 s at 10 frames/s (the last frame or two may fall after the run's end).
   EXPECT_GE(m["video.frames"].get<int>(), 28);
