@@ -1024,11 +1024,12 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     const auto bad = quality_failures(sc.quality, m);
     m["quality.pass"] = bad.empty();
     m["quality.failures"] = bad;
-    if (!bad.empty() && out.exit_code == 0) {
-      out.exit_code = 1;
+    if (!bad.empty()) {
       std::string why;
       for (const auto& b : bad) why += (why.empty() ? "" : "; ") + b;
-      out.verdict = "bad part: " + why;
+      // After another failure (paths not planned, transits refused) the part's own verdict too.
+      out.verdict = out.exit_code == 0 ? "bad part: " + why : out.verdict + "; bad part: " + why;
+      out.exit_code = 1;
     }
   }
   if (!out.refused && out.exit_code == 0) {
