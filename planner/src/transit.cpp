@@ -84,7 +84,7 @@ bool lifted(const RobotModel& robot, const Vector6& q, const Vec3& up_B, double 
   return true;
 }
 
-std::string mm(double v) { return strf("%.1f mm", v * 1e3); }
+std::string mm(double v) { return strf("%.2f mm", v * 1e3); }
 
 // RRT-connect (Kuffner & LaValle 2000) in joint space within the joint limits: two trees grown
 // from the ends towards random configurations (one step of at most `step` rad per extension,
