@@ -284,6 +284,18 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
                "' (resolved to " + robot_file + ", not found)");
   }
 
+  // `robot_home`: the parking (and scanning) pose, in place of the robot file's (a URDF arm's is
+  // its zero pose) [rad, D-H angles].
+  if (root.has("robot_home")) {
+    const ConfigNode h = root.at("robot_home");
+    const auto v = h.as_doubles(kNumJoints);
+    Vector6 q;
+    for (int i = 0; i < kNumJoints; ++i) q[i] = v[static_cast<std::size_t>(i)];
+    if (!q.allFinite() || !sc.robot.within_limits(q))
+      h.fail("expected 6 finite joint angles [rad] within the robot's joint limits");
+    sc.robot.home = q;
+  }
+
   sim::CellSpec& cell = sc.cell;
   if (root.has("cell")) {
     const ConfigNode c = root.at("cell");

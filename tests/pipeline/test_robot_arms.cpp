@@ -25,6 +25,9 @@ struct Arm {
   // Transit speed, a fraction of the joint limits: the UR10e's servos lag its sampled transits
   // by 280-600 mm at the default 25 % (and hit the scanner head); at 8 % they track to 0.03 mm.
   const char* transit_speed = "0.25";
+  // Its parking and scanning pose, when the robot file's is not one: the URDF KR16's is its
+  // zero pose, the upper arm level at the shoulder's height, 15 mm inside the table top.
+  const char* home = "";
 };
 
 class DefaultScenarioArms : public ::testing::TestWithParam<Arm> {};
@@ -37,12 +40,13 @@ TEST_P(DefaultScenarioArms, GrindsThePlateToItsLimitsAndWritesItsControllersProg
   // pass through the head there while they grind (KR16: 21 mm deep, IRB 4600: 2.9 mm, M-20iA:
   // 12.7 mm, UR10e: 2.4 mm, measured by the collision check). The scan views are planned about
   // the part, so the scan is the same.
-  const auto sc = pipeline::load_scenario(
-      ftest::source_path("scenarios/default.yaml"),
-      {std::string("robot=../models/robots/") + a.robot, "cell.base_height=0",
-       std::string("cell.robot_base={xyz: [0, 0, ") + a.base_z + "]}",
-       "cell.scanner_mount={xyz: [0.70, 0.0, 1.6], rpy: [3.141592653589793, 0.0, 0.0]}",
-       std::string("execution.transit_speed=") + a.transit_speed});
+  std::vector<std::string> overrides{
+      std::string("robot=../models/robots/") + a.robot, "cell.base_height=0",
+      std::string("cell.robot_base={xyz: [0, 0, ") + a.base_z + "]}",
+      "cell.scanner_mount={xyz: [0.70, 0.0, 1.6], rpy: [3.141592653589793, 0.0, 0.0]}",
+      std::string("execution.transit_speed=") + a.transit_speed};
+  if (*a.home) overrides.push_back(std::string("robot_home=") + a.home);
+  const auto sc = pipeline::load_scenario(ftest::source_path("scenarios/default.yaml"), overrides);
   pipeline::RunOptions o;
   o.report = false;
   o.write_scan = false;
@@ -98,4 +102,6 @@ INSTANTIATE_TEST_SUITE_P(Library, DefaultScenarioArms,
                                            Arm{"abb_irb4600.yaml", "0", ".mod"},
                                            Arm{"fanuc_m20ia.yaml", "0", ""},
                                            Arm{"ur10e.yaml", "0.78", ".script", "0.08"},
-                                           Arm{"urdf/kuka_kr16_2.urdf", "0", ".src"}));
+                                           Arm{"urdf/kuka_kr16_2.urdf", "0", ".src", "0.25",
+                                               "[-1.5707963267948966, -1.5707963267948966, 0.0, 0.0, "
+                                               "1.5707963267948966, 3.141592653589793]"}));
