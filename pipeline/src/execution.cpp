@@ -116,11 +116,11 @@ Motion transit_motion(const planner::TransitResult& tr, std::size_t path) {
   return m;
 }
 
+}  // namespace
+
 double duration_of(const Motion& m) {
   return m.trajectory.t.empty() ? 0.0 : m.trajectory.t.back() - m.trajectory.t.front();
 }
-
-}  // namespace
 
 PlanningWorld::PlanningWorld(const Scenario& sc, const CellSetup& setup, const MeshBvh& cad_C,
                              const Pose& X_WC_plan, double burr_radius) {
@@ -155,7 +155,6 @@ JobMotions plan_job_motions(const Scenario& sc, const ScenarioScan& ss, const Po
   planner::TransitParams tp;
   tp.clearance = sc.execution.transit_clearance;
   tp.speed_ratio = sc.execution.transit_speed;
-  tp.min_end_clearance = std::min(tp.min_end_clearance, tp.clearance);
   tp.up_B = ss.setup.spec.X_WB.linear().transpose() * Vec3::UnitZ();
   tp.via = {sc.robot.home};
   const auto add_transit = [&](const Vector6& from, const Vector6& to, std::size_t path) {
@@ -191,7 +190,6 @@ JobMotions plan_job_motions(const Scenario& sc, const ScenarioScan& ss, const Po
       if (out.first_refusal.empty()) out.first_refusal = "the way home: " + *why;
     }
   }
-  for (const Motion& m : out.motions) out.cycle_time += duration_of(m);
   return out;
 }
 

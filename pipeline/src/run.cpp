@@ -554,6 +554,7 @@ Plans plan_setup(const Scenario& sc, const CellSetup& setup, const Perception& p
   // Every sample's arm and tool clear of the cell and of the CAD where perception put it.
   const MeshBvh cad_C(setup.casting.nominal);
   const Pose X_WC_plan = setup.spec.X_WB * X_BC_plan;
+  out.X_WC_plan = X_WC_plan;
   std::map<double, std::unique_ptr<PlanningWorld>> worlds;
   const auto clearance_for = [&](double burr_radius) {
     auto& w = worlds[burr_radius];
@@ -903,14 +904,13 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
     std::size_t transits = 0, lifted = 0, left_alone = 0;
     double transit_time = 0, min_clearance = sim::CellCollision::kReach;
     std::string refusal;
-    const auto job_of = [&](const ScenarioScan& s, const Perception& p, const Plans& pl) {
+    const auto job_of = [&](const ScenarioScan& s, const Plans& pl) {
       std::vector<Motion> motions;
       if (!sc.execution.transits) {
         for (const auto& pp : pl.paths) motions.push_back(motion_of(pp));
         return motions;
       }
-      const Pose X_WC_plan = s.setup.spec.X_WM * p.X_CM_est.inverse() * sc.faults.part_offset_C.inverse();
-      JobMotions job = plan_job_motions(sc, s, X_WC_plan, exec.grid().nominal(), pl.paths);
+      JobMotions job = plan_job_motions(sc, s, pl.X_WC_plan, exec.grid().nominal(), pl.paths);
       transits += job.transits;
       lifted += job.lifted;
       left_alone += job.refused_paths.size() + job.home_refused;
@@ -919,13 +919,12 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
       if (refusal.empty()) refusal = job.first_refusal;
       return std::move(job.motions);
     };
-    const std::vector<Motion> motions1 = job_of(ss, perc, plans);
+    const std::vector<Motion> motions1 = job_of(ss, plans);
     std::unique_ptr<VideoRecorder> video;
     FrameHook hook;
     if (!opt.video.path.empty()) {
       double duration = 0;
-      for (const auto& mo : motions1)
-        duration += mo.trajectory.t.back() - mo.trajectory.t.front() + sc.execution.exec.settle_time;
+      for (const auto& mo : motions1) duration += duration_of(mo) + sc.execution.exec.settle_time;
       // The second setup's motions are not planned yet: as long again, and at least two minutes.
       if (second) duration = std::max(2 * duration, 120.0);
       VideoOptions vo = opt.video;
@@ -956,7 +955,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
       if (ground_twice) {
         const auto t_exec2 = Clock::now();
         if (video) video->new_setup();
-        exec.run_motions(s2->scan, job_of(s2->scan, s2->perception, s2->plans), hook, det.paths.size());
+        exec.run_motions(s2->scan, job_of(s2->scan, s2->plans), hook, det.paths.size());
         execution_s += seconds_since(t_exec2);
         last_scan = &s2->scan;
         last_X_CM_est = s2->perception.X_CM_est;

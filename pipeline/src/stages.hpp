@@ -26,6 +26,7 @@ struct Perception {
 /// One setup's plans.
 struct Plans {
   std::vector<PlannedPath> paths;  ///< every grinding motion (a path in pieces: one per piece)
+  Pose X_WC_plan = Pose::Identity();  ///< where the plan puts the casting ({W}; a drill's offset undone)
   std::vector<std::size_t> failed_paths;  ///< detected paths that could not be planned
   std::string first_failure;
   double time_s = 0;

@@ -141,8 +141,7 @@ CellCollision::CellCollision(const mjModel& m, const MeshBvh& casting_C, const P
   const MjDataPtr dp = make_data(&m);
   mj_kinematics(&m, dp.get());
   for (Obstacle& o : obstacles_) o.X_WG = geom_pose(*dp, o.geom);
-  const Pose X_WC_ = X_CW_.inverse();
-  for (const Vec3& v : casting_C_.mesh().vertices) casting_box_W_.extend(X_WC_ * v);
+  for (const Vec3& v : casting_C_.mesh().vertices) casting_box_W_.extend(X_WC * v);
 }
 
 bool CellCollision::checks_flash(std::size_t k) const {

@@ -44,6 +44,8 @@ struct Motion {
 
 /// A plan's motion: its trajectory and tool poses as planned.
 Motion motion_of(const PlannedPath& plan);
+/// [s] a motion's program time (its trajectory's span).
+double duration_of(const Motion& m);
 
 /// The planner's world: the cell's obstacles (robot base, table, fixture, scanner head) from
 /// its layout and the casting's CAD where perception put it; no flash (the planner knows none).
@@ -82,7 +84,6 @@ struct JobMotions {
   std::string first_refusal;            ///< why the first was dropped ("" none)
   bool home_refused = false;            ///< no clear way home from the last path
   double transit_time = 0;              ///< [s] program time of the transits
-  double cycle_time = 0;                ///< [s] program time of the whole job
   double min_clearance = 0;             ///< [m] least planned clearance of a transit
 };
 /// @param X_WC_plan the casting's pose the plan was made for ({W})

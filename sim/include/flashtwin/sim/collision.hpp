@@ -71,8 +71,9 @@ class CellCollision {
   CollisionHit check_geom(const mjData& d, std::size_t k, double reach = kReach) const;
   /// The closest approach of the whole robot.
   CollisionHit check(const mjData& d, double reach = kReach) const;
-  /// Only the flash voxels against geom k's surface points (cheap: grid look-ups); clearance 0
-  /// with obstacle "flash" when a point lies in standing flash, else kReach.
+  /// Only the flash voxels against geom k's surface points (cheap: grid look-ups): obstacle
+  /// "flash" with clearance −½ voxel (the depth is not known) when a point lies in standing
+  /// flash, else kReach.
   CollisionHit check_flash(const mjData& d, std::size_t k) const;
   /// Model geom id of robot geom k.
   int geom_id(std::size_t k) const { return robot_[k].geom; }
