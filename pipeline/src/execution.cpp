@@ -11,6 +11,7 @@
 
 #include "flashtwin/core/format.hpp"
 #include "flashtwin/core/io.hpp"
+#include "flashtwin/pipeline/run.hpp"
 #include "flashtwin/core/mesh_query.hpp"
 #include "flashtwin/perception/flash_detection.hpp"
 #include "flashtwin/planner/transit.hpp"
@@ -415,7 +416,7 @@ void rescan_after(const Scenario& sc, const ScenarioScan& ss, const Pose& X_CM_e
   const sim::CellScan scan = sim::scan_cell(ss.files.mjcf, after, params, ss.scan.X_WM_nominal,
                                             ss.scan.X_WM_true);
   const MeshBvh& cad = summary.grid->nominal();  // the CAD's closest-point tree, built once
-  const auto det = perception::detect_flash(scan.result.cloud_M, cad, X_CM_est, sc.detection);
+  const auto det = detect_off_fixture(sc, ss.setup, scan.result.cloud_M, cad, X_CM_est);
   std::size_t flash_pts = 0;
   double worst = 0;
   for (std::size_t i = 0; i < det.labels.size(); ++i) {

@@ -291,29 +291,46 @@ void save_scan(const ScenarioScan& s, const std::string& dir, bool pcd) {
 
 namespace {
 
-// What the cell knows of its fixture (the locating blocks stand where the cell's design puts
-// them for the casting's nominal placement) removes their points before registration: a block's
-// top and faces beside a casting that is nearly symmetric about a turn (a housing's flange)
-// otherwise explain the turned pose's overhanging flange. Points inside a block grown by
-// `margin` (noise, calibration error) in {M}, with the calibrated mount X_WM. A randomly placed
-// casting has no fixture the cell could know: nothing is removed then.
-PointCloud without_fixture(const PointCloud& cloud_M, const Scenario& sc, const CellSetup& setup,
-                           double margin) {
-  if (sc.placement.random) return cloud_M;
+constexpr double kFixtureMargin = 0.003;  // [m] scan points this near a fixture block are on it
+
+// The cell's fixture blocks (locating blocks and riser): the scenario's, or laid out for the
+// casting's nominal placement.
+std::vector<sim::FixtureBlock> cell_fixture(const CellSetup& setup) {
+  return setup.spec.fixtures.empty() ? sim::fixture_blocks(setup.spec, setup.casting.nominal)
+                                     : setup.spec.fixtures;
+}
+
+// What the cell knows of its fixture (the locating blocks and the riser stand where the cell's
+// design puts them for the casting's nominal placement) removes their points before
+// registration and detection: a block's top and faces beside a casting that is nearly symmetric
+// about a turn (a housing's flange) otherwise explain the turned pose's overhanging flange, and
+// the riser's top seen through a bolt hole lies off the CAD where the hole's rim is (false
+// flash). The indices of the points outside every block grown by `margin` (noise, calibration
+// error) in {M}, with the calibrated mount X_WM. A randomly placed casting has no fixture the
+// cell could know: every point is kept then.
+std::vector<std::uint32_t> off_fixture(const PointCloud& cloud_M, const Scenario& sc,
+                                       const CellSetup& setup, double margin) {
+  std::vector<std::uint32_t> kept;
+  kept.reserve(cloud_M.size());
   const std::vector<sim::FixtureBlock> blocks =
-      setup.spec.fixtures.empty() ? sim::fixture_blocks(setup.spec, setup.casting.nominal)
-                                  : setup.spec.fixtures;
+      sc.placement.random ? std::vector<sim::FixtureBlock>{} : cell_fixture(setup);
   std::vector<Pose> X_FM;
   for (const auto& b : blocks) X_FM.push_back(b.X_WF.inverse() * setup.spec.X_WM);
-  PointCloud out;
-  for (const auto& p : cloud_M.points) {
+  for (std::size_t i = 0; i < cloud_M.size(); ++i) {
     bool inside = false;
     for (std::size_t k = 0; k < blocks.size() && !inside; ++k) {
-      const Vec3 q = X_FM[k] * p.cast<double>();
+      const Vec3 q = X_FM[k] * cloud_M.points[i].cast<double>();
       inside = (q.cwiseAbs() - blocks[k].half_size).maxCoeff() <= margin;
     }
-    if (!inside) out.points.push_back(p);
+    if (!inside) kept.push_back(static_cast<std::uint32_t>(i));
   }
+  return kept;
+}
+
+PointCloud subset(const PointCloud& cloud, const std::vector<std::uint32_t>& index) {
+  PointCloud out;
+  out.points.reserve(index.size());
+  for (const std::uint32_t i : index) out.points.push_back(cloud.points[i]);
   return out;
 }
 
@@ -385,8 +402,22 @@ std::vector<planner::GrindResult> plan_in_pieces(const RobotModel& robot, const 
 }  // namespace
 
 PointCloud registration_cloud(const Scenario& sc, const ScenarioScan& ss) {
-  return without_fixture(ss.scan.result.cloud_M, sc, ss.setup, 0.003);
+  return subset(ss.scan.result.cloud_M, off_fixture(ss.scan.result.cloud_M, sc, ss.setup, kFixtureMargin));
 }
+
+perception::DetectionResult detect_off_fixture(const Scenario& sc, const CellSetup& setup,
+                                               const PointCloud& cloud_M, const MeshBvh& cad_C,
+                                               const Pose& X_CM) {
+  const std::vector<std::uint32_t> kept = off_fixture(cloud_M, sc, setup, kFixtureMargin);
+  perception::DetectionResult det = perception::detect_flash(subset(cloud_M, kept), cad_C, X_CM, sc.detection);
+  std::vector<std::uint8_t> labels(cloud_M.size(), perception::kDetectIgnored);
+  for (std::size_t i = 0; i < det.labels.size(); ++i) labels[kept[i]] = det.labels[i];
+  det.labels = std::move(labels);
+  for (auto& region : det.regions)
+    for (std::uint32_t& i : region.points) i = kept[i];
+  return det;
+}
+
 
 namespace {
 
@@ -426,7 +457,7 @@ Perception perceive(const Scenario& sc, const ScenarioScan& ss, const RunOptions
   if (reg.confident) {
     progress(opt, "detection", 0.3);
     const MeshBvh cad_bvh(setup.casting.nominal);
-    p.detection = perception::detect_flash(ss.scan.result.cloud_M, cad_bvh, p.X_CM_est, sc.detection);
+    p.detection = detect_off_fixture(sc, ss.setup, ss.scan.result.cloud_M, cad_bvh, p.X_CM_est);
   }
   p.time_s = seconds_since(t0);
   return p;
@@ -550,7 +581,18 @@ Plans plan_setup(const Scenario& sc, const CellSetup& setup, const Perception& p
   // The worktable's top, where the plan puts the part: the burr keeps clear of it.
   planner::GrindParams P = sc.grind;
   const Pose X_CTable = (setup.spec.X_WB * X_BC_plan).inverse() * setup.spec.X_WTable;
-  if (sc.floor_check) P.floor_C = std::make_pair(Vec3(X_CTable.translation()), Vec3(X_CTable.linear().col(2)));
+  if (sc.floor_check) {
+    P.floor_C = std::make_pair(Vec3(X_CTable.translation()), Vec3(X_CTable.linear().col(2)));
+    // The riser the part stands on (cell hardware, where the cell set it up): a floor of its own.
+    for (const sim::FixtureBlock& b : cell_fixture(setup))
+      if (b.name == "riser") {
+        planner::GrindParams::Riser r;
+        r.X_CR = (setup.spec.X_WB * X_BC_plan).inverse() * b.X_WF *
+                 Pose(Eigen::Translation3d(0, 0, b.half_size.z()));
+        r.half = b.half_size.head<2>();
+        P.riser_C = r;
+      }
+  }
   // Every sample's arm and tool clear of the cell and of the CAD where perception put it.
   const MeshBvh cad_C(setup.casting.nominal);
   const Pose X_WC_plan = setup.spec.X_WB * X_BC_plan;

@@ -297,6 +297,11 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
   }
 
   sim::CellSpec& cell = sc.cell;
+  // The casting stands on a riser 40 mm over the table by default (`cell.riser`): the burr
+  // grinding a fin low on the part (a housing's flange, a bracket's parting line 7 mm up) hangs
+  // up to its 20 mm length below the fin, under the part's bottom; on the table it cut into the
+  // table top. 40 mm leaves the collet (r 12.5 mm) room under a tilted burr as well.
+  cell.riser_height = 0.04;
   if (root.has("cell")) {
     const ConfigNode c = root.at("cell");
     cell.X_WB = c.get_pose("robot_base", cell.X_WB);
@@ -314,6 +319,11 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
       }
       if (cell.X_WTable.translation().z() <= cell.table_size.z())
         t.fail("expected the table top above the floor by more than its thickness");
+    }
+    if (c.has("riser")) {
+      const ConfigNode r = c.at("riser");
+      cell.riser_height = r.get_double("height", 0.0, 0.5, cell.riser_height);
+      cell.riser_inset = r.get_double("inset", 0.0, 0.2, cell.riser_inset);
     }
     cell.X_WM = c.get_pose("scanner_mount", cell.X_WM);
     cell.timestep = c.get_double("timestep", 1e-5, 0.001, cell.timestep);

@@ -205,23 +205,41 @@ struct Context {
     // Above the floor: the burr slides up its axis where its lowest point would come nearer the
     // floor than the clearance (a fin low on the casting), not above the depth that keeps the fin
     // on the burr's straight side.
-    if (P.floor_C) {
-      const auto& [o, N] = *P.floor_C;
+    if (P.floor_C || P.riser_C) {
+      const double short_by = floor_shortfall(X);
       const Vec3 z = X.linear().col(2);
-      const double up = -z.dot(N);  // the tip's rise per unit of less tip depth
-      if (up > 0.1) {
-        const Vec3 tip = X.translation();
-        const double low = std::min((tip - radius * z - o).dot(N), (tip - length * z - o).dot(N)) - radius;
-        const double short_by = P.floor_clearance - low;
+      const double up = -z.dot(floor_normal());  // the tip's rise per unit of less tip depth
+      if (up > 0.1 && short_by > 0) {
         const double min_depth = std::min(tip_depth, radius + 1e-3);
-        if (short_by > 0) {
-          const double depth = std::max(min_depth, tip_depth - short_by / up);
-          X = grind_tool_pose(g.p, n_wall, g.t, f_wall, x_ref, g.extra, l, tl, sp, radius, length, depth, off);
-        }
+        const double depth = std::max(min_depth, tip_depth - short_by / up);
+        X = grind_tool_pose(g.p, n_wall, g.t, f_wall, x_ref, g.extra, l, tl, sp, radius, length, depth, off);
       }
     }
     X.translation() += g.lift * f;
     return X;
+  }
+
+  // The floors' shared upward normal in {C}: the table's (a riser's top is parallel to it).
+  Vec3 floor_normal() const { return P.floor_C ? P.floor_C->second : P.riser_C->X_CR.linear().col(2); }
+
+  // How far the burr at tool pose X (TCP in {C}) comes nearer than floor_clearance to the floor
+  // under it: the table's top, or the riser's where the burr's lowest point is over the riser
+  // (grown by the burr radius and the clearance); <= 0 when clear. The burr's lowest point is
+  // the lower of its two end circles' lowest points (ends at the tip and `length` up its axis).
+  double floor_shortfall(const Pose& X) const {
+    const Vec3 N = floor_normal(), z = X.linear().col(2), tip = X.translation();
+    const Vec3 ball = tip - radius * z, top = tip - length * z;  // the burr's two lowest centres
+    const Vec3 lowest = ball.dot(N) < top.dot(N) ? ball : top;
+    const auto height = [&](const Vec3& o) { return (lowest - o).dot(N) - radius; };
+    double short_by = -std::numeric_limits<double>::infinity();
+    if (P.floor_C) short_by = P.floor_clearance - height(P.floor_C->first);
+    if (P.riser_C) {
+      const Vec3 q = P.riser_C->X_CR.inverse() * lowest;
+      const double reach = radius + P.floor_clearance;
+      if (std::abs(q.x()) <= P.riser_C->half.x() + reach && std::abs(q.y()) <= P.riser_C->half.y() + reach)
+        short_by = std::max(short_by, P.floor_clearance - height(P.riser_C->X_CR.translation()));
+    }
+    return short_by;
   }
 
   // IK of sample i on branch `branch`, continuing from `ref` (first: no continuity checks).

@@ -66,29 +66,79 @@ std::string link_geoms(const DhRow& row, double radius, const char* material) {
   return os.str();
 }
 
+// The fixture blocks' axes {F} in {W}: the table's, turned with the casting's x axis (its yaw
+// about the table normal only).
+Mat3 fixture_axes_W(const CellSpec& spec) {
+  const Vec3 x_T = spec.X_WTable.inverse().linear() * spec.X_WC.linear().col(0);
+  const double yaw = std::atan2(x_T.y(), x_T.x());
+  return spec.X_WTable.linear() * Eigen::AngleAxisd(yaw, Vec3::UnitZ()).toRotationMatrix();
+}
+
 // The locating blocks beside the casting's bounds [lo, hi] in {C}: standing flat on the table
-// top, turned with the casting's x axis (its yaw about the table normal only), centred on its
-// y extent, kFixtureGap outside its x extent.
+// top, turned with the casting's x axis, centred on its y extent, kFixtureGap outside its x
+// extent; tall enough to reach kFixtureHalfSize's height up the casting standing on a riser.
 std::vector<FixtureBlock> fixture_blocks_from_bounds(const CellSpec& spec, const Vec3& lo,
                                                      const Vec3& hi) {
   const Pose X_TableW = spec.X_WTable.inverse();
-  const Vec3 x_T = X_TableW.linear() * spec.X_WC.linear().col(0);
-  const double yaw = std::atan2(x_T.y(), x_T.x());
-  const Mat3 R_WF =
-      spec.X_WTable.linear() * Eigen::AngleAxisd(yaw, Vec3::UnitZ()).toRotationMatrix();
+  const Mat3 R_WF = fixture_axes_W(spec);
+  const double half_z = kFixtureHalfSize.z() + 0.5 * spec.riser_height;
   std::vector<FixtureBlock> blocks;
   for (int sx = -1; sx <= 1; sx += 2) {
     const Vec3 p_C(sx > 0 ? hi.x() + kFixtureOffset : lo.x() - kFixtureOffset,
                    0.5 * (lo.y() + hi.y()), 0);
     Vec3 p_T = X_TableW * (spec.X_WC * p_C);
-    p_T.z() = kFixtureHalfSize.z();
+    p_T.z() = half_z;
     FixtureBlock b;
     b.name = sx > 0 ? "fixture_right" : "fixture_left";
     b.X_WF.linear() = R_WF;
     b.X_WF.translation() = spec.X_WTable * p_T;
-    b.half_size = kFixtureHalfSize;
+    b.half_size = Vec3(kFixtureHalfSize.x(), kFixtureHalfSize.y(), half_z);
     blocks.push_back(b);
   }
+  return blocks;
+}
+
+// The riser under a casting whose points (vertices, or its bounds' corners) in {W} are p_W:
+// the footprint, in the fixture's axes, of those within 1 mm of the lowest, shrunk by the
+// inset (at least kRiserMinHalf about its centre), from the table top to the lowest point.
+// None without a riser height.
+std::vector<FixtureBlock> riser_block(const CellSpec& spec, const std::vector<Vec3>& p_W) {
+  if (!(spec.riser_height > 0) || p_W.empty()) return {};
+  constexpr double kLowBand = 1e-3;       // [m] points this near the lowest bear on the riser
+  constexpr double kRiserMinHalf = 0.01;  // [m] a pin of 20 x 20 mm at least
+  const Mat3 R_WF = fixture_axes_W(spec);
+  const Mat3 R_TF = spec.X_WTable.linear().transpose() * R_WF;  // about the table normal
+  const Pose X_TableW = spec.X_WTable.inverse();
+  double low = std::numeric_limits<double>::infinity();
+  for (const Vec3& p : p_W) low = std::min(low, (X_TableW * p).z());
+  if (!(low > 1e-6)) return {};  // the casting is not raised (check_cell_layout says so)
+  Eigen::Vector2d lo = Eigen::Vector2d::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+  for (const Vec3& p : p_W) {
+    const Vec3 q_T = X_TableW * p;
+    if (q_T.z() > low + kLowBand) continue;
+    const Vec3 q_F = R_TF.transpose() * q_T;  // in-plane coordinates along the fixture's axes
+    lo = lo.cwiseMin(q_F.head<2>());
+    hi = hi.cwiseMax(q_F.head<2>());
+  }
+  const Eigen::Vector2d centre = 0.5 * (lo + hi);
+  const Eigen::Vector2d half =
+      (0.5 * (hi - lo) - Eigen::Vector2d::Constant(spec.riser_inset)).cwiseMax(kRiserMinHalf);
+  FixtureBlock b;
+  b.name = "riser";
+  b.X_WF.linear() = R_WF;
+  b.X_WF.translation() = spec.X_WTable * (R_TF * Vec3(centre.x(), centre.y(), 0) +
+                                          Vec3(0, 0, 0.5 * low));
+  b.half_size = Vec3(half.x(), half.y(), 0.5 * low);
+  return {b};
+}
+
+// The locating blocks and the riser of a casting known only by its bounds in {C}.
+std::vector<FixtureBlock> fixture_from_bounds(const CellSpec& spec, const Vec3& lo, const Vec3& hi) {
+  std::vector<FixtureBlock> blocks = fixture_blocks_from_bounds(spec, lo, hi);
+  std::vector<Vec3> corners_W;
+  for (int k = 0; k < 8; ++k)
+    corners_W.push_back(spec.X_WC * Vec3(k & 1 ? hi.x() : lo.x(), k & 2 ? hi.y() : lo.y(), k & 4 ? hi.z() : lo.z()));
+  for (FixtureBlock& r : riser_block(spec, corners_W)) blocks.push_back(r);
   return blocks;
 }
 
@@ -403,7 +453,7 @@ std::string cell_mjcf(const RobotModel& robot, const CellSpec& spec, const Casti
   os << "    </body>\n";
   // Fixture: the given blocks, or two locating blocks beside the casting's bounds.
   for (const FixtureBlock& f :
-       spec.fixtures.empty() ? fixture_blocks_from_bounds(spec, ca.lo, ca.hi) : spec.fixtures)
+       spec.fixtures.empty() ? fixture_from_bounds(spec, ca.lo, ca.hi) : spec.fixtures)
     os << "    <geom name=\"" << f.name << "\" type=\"box\" size=\"" << vec3_string(f.half_size)
        << "\" pos=\"" << vec3_string(f.X_WF.translation()) << "\" quat=\""
        << quat_wxyz_string(f.X_WF.linear()) << "\" material=\"fixture\" contype=\"0\" "
@@ -466,7 +516,7 @@ Pose rest_on_table(const CellSpec& spec, const TriangleMesh& nominal, double x, 
   for (const Vec3& v : nominal.vertices) min_z = std::min(min_z, (R_TC * v).z());
   Pose X_TC = Pose::Identity();
   X_TC.linear() = R_TC;
-  X_TC.translation() = Vec3(x, y, -min_z);
+  X_TC.translation() = Vec3(x, y, std::max(0.0, spec.riser_height) - min_z);
   return spec.X_WTable * X_TC;
 }
 
@@ -628,6 +678,7 @@ std::vector<FixtureBlock> fixture_blocks(const CellSpec& spec, const TriangleMes
                                : lo_x - kFixtureGap - b.half_size.x();
     b.X_WF.translation() += b.X_WF.linear().col(0) * shift;
   }
+  for (FixtureBlock& r : riser_block(spec, mesh_W.vertices)) blocks.push_back(r);
   return blocks;
 }
 
@@ -664,10 +715,13 @@ void check_cell_layout(const CellSpec& spec, const TriangleMesh& nominal_C,
                       ", got it over the edge by " + length_text(overhang) +
                       " (move the casting towards the centre)");
   }
-  if (std::abs(lo_T.z()) > tol)
-    throw ConfigError("casting.placement: expected the casting resting on the table top, got its "
-                      "lowest point " + length_text(std::abs(lo_T.z())) +
-                      (lo_T.z() > 0 ? " above" : " below") + " the top surface");
+  const double rest = std::max(0.0, spec.riser_height);
+  if (std::abs(lo_T.z() - rest) > tol)
+    throw ConfigError(std::string("casting.placement: expected the casting resting on ") +
+                      (rest > 0 ? "the riser (" + length_text(rest) + " over the table top)"
+                                : std::string("the table top")) +
+                      ", got its lowest point " + length_text(std::abs(lo_T.z() - rest)) +
+                      (lo_T.z() > rest ? " above" : " below") + " that surface");
 
   // Fixture blocks: on the table top, clear of the casting.
   const std::vector<FixtureBlock> blocks =

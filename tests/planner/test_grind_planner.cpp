@@ -734,6 +734,40 @@ TEST(GrindPlanner, PassesInAHoleStopAtItsCentre) {
   EXPECT_EQ(plan_grind(robot, X_BC, line, P).passes, 5);
 }
 
+// The casting stands on a riser (the cell's support block): a fin low in a hole over the riser
+// keeps the burr floor_clearance above the riser's top (the burr slides up its axis), while a
+// fin on an outer wall, whose burr hangs beside the riser, keeps its full tip depth.
+TEST(GrindPlanner, BurrKeepsOffTheRiserUnderTheCastingButHangsBesideIt) {
+  const RobotModel robot = ftest::ft6();
+  const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
+  const double r = robot.tool.radius, dtip = robot.tool.length / 2;
+  ASSERT_GT(dtip, r + 2e-3);  // room to slide up by 1 mm and stay at the straight-side depth
+  GrindParams P = flush();
+  GrindParams::Riser riser;
+  riser.X_CR = translation(Vec3(0, 0, -(dtip - 1e-3)));  // top 1 mm above the burr's tip
+  riser.half = Eigen::Vector2d(0.02, 0.02);
+  const auto lowest_tip = [](const GrindResult& g) {
+    double z = 1e9;
+    for (const GrindSample& s : g.samples)
+      if (s.kind == SampleKind::kCut) z = std::min(z, s.X_CT.translation().z());
+    return z;
+  };
+  const GrindPath ring = hole_circle(r + 3.5e-3, 72);
+  const GrindResult free_ring = plan_grind(robot, X_BC, ring, P);
+  ASSERT_TRUE(free_ring.ok()) << free_ring.message;
+  EXPECT_NEAR(lowest_tip(free_ring), -dtip, 1e-9);  // 1 mm into the riser without it
+  P.riser_C = riser;
+  const GrindResult ring_on_riser = plan_grind(robot, X_BC, ring, P);
+  ASSERT_TRUE(ring_on_riser.ok()) << ring_on_riser.message;
+  EXPECT_NEAR(lowest_tip(ring_on_riser), -(dtip - 2e-3), 1e-9);  // floor_clearance over the top
+  // The outer wall x_C = 0 with the riser 15 mm inside it (its edge at x = 15 mm, the burr at
+  // x = -r): nothing under the burr, the full tip depth.
+  P.riser_C->X_CR = translation(Vec3(0.035, 0, -(dtip - 1e-3)));
+  const GrindResult wall = plan_grind(robot, X_BC, wall_line(-0.02, 0.02, 0.005), P);
+  ASSERT_TRUE(wall.ok()) << wall.message;
+  EXPECT_NEAR(lowest_tip(wall), -dtip, 1e-9);
+}
+
 TEST(GrindPlanner, RunOutIsShortenedWhereTheWallCurves) {
   // Half a 30 mm hole as an open path: a straight 2 mm run-out would leave the curved wall by
   // 2²/(2·30) = 0.067 mm, so it is cut to where it stays within 20 µm (about 1.1 mm).

@@ -460,9 +460,9 @@ TEST(CellLayout, DefaultLayoutPassesAndItsFixtureStandsBesideTheCasting) {
   const auto setup = pipeline::setup_cell(sc);
   sim::CellSpec spec = setup.spec;
   spec.fixtures = sim::fixture_blocks(spec, setup.casting.nominal);
-  ASSERT_EQ(spec.fixtures.size(), 2u);
+  ASSERT_EQ(spec.fixtures.size(), 3u);  // two locating blocks and the riser
   EXPECT_NO_THROW(sim::check_cell_layout(spec, setup.casting.nominal));
-  // Upright casting: the blocks stand 8 mm beyond its bounds along its x axis, on the table.
+  // Upright casting: the blocks stand 22 mm beyond its bounds along its x axis, on the table.
   Vec3 lo, hi;
   setup.casting.nominal.bounds(lo, hi);
   const Pose X_CW = spec.X_WC.inverse();
@@ -480,6 +480,63 @@ TEST(CellLayout, DefaultLayoutPassesAndItsFixtureStandsBesideTheCasting) {
     const int g = sim::require_id(m.get(), mjOBJ_GEOM, f.name);
     EXPECT_NEAR((Vec3(d->geom_xpos[3 * g], d->geom_xpos[3 * g + 1], d->geom_xpos[3 * g + 2]) -
                  f.X_WF.translation()).norm(), 0, 1e-12);
+  }
+}
+
+// The default cell raises the casting on a riser 40 mm over the table: the riser stands on the
+// table under the casting's lowest face, 15 mm inside it on every side, its top where the
+// casting's lowest point is; the locating blocks reach 25 mm up the casting's side. A casting
+// left on the table in a cell with a riser is refused, naming the riser.
+TEST(CellLayout, CastingStandsOnARiserInsideItsLowestFace) {
+  const auto sc = pipeline::load_scenario(ftest::source_path("scenarios/default.yaml"));
+  const auto setup = pipeline::setup_cell(sc);
+  const sim::CellSpec& spec = setup.spec;
+  ASSERT_EQ(spec.riser_height, 0.04);
+  const Pose X_TableW = spec.X_WTable.inverse();
+  const TriangleMesh& nominal = setup.casting.nominal;
+  double low = 1e9;
+  for (const Vec3& v : nominal.vertices) low = std::min(low, (X_TableW * (spec.X_WC * v)).z());
+  EXPECT_NEAR(low, 0.04, 1e-12);
+  const auto blocks = sim::fixture_blocks(spec, nominal);
+  ASSERT_EQ(blocks.size(), 3u);
+  const sim::FixtureBlock& riser = blocks[2];
+  EXPECT_EQ(riser.name, "riser");
+  const Vec3 c_T = X_TableW * riser.X_WF.translation();
+  EXPECT_NEAR(c_T.z() - riser.half_size.z(), 0, 1e-12);           // on the table top
+  EXPECT_NEAR(c_T.z() + riser.half_size.z(), 0.04, 1e-12);       // up to the casting
+  // The flanged plate lies on its flat bottom: the riser's top corners lie 15 mm inside the
+  // bounds of the casting's lowest face (in {C}, whose axes the riser shares).
+  Vec3 lo(1e9, 1e9, 0), hi = -lo;
+  for (const Vec3& v : nominal.vertices)
+    if ((X_TableW * (spec.X_WC * v)).z() < low + 1e-3) {
+      lo = lo.cwiseMin(v);
+      hi = hi.cwiseMax(v);
+    }
+  const Pose X_CW = spec.X_WC.inverse();
+  for (int k = 0; k < 4; ++k) {
+    const Vec3 corner_F(k & 1 ? riser.half_size.x() : -riser.half_size.x(),
+                        k & 2 ? riser.half_size.y() : -riser.half_size.y(), riser.half_size.z());
+    const Vec3 p_C = X_CW * (riser.X_WF * corner_F);
+    EXPECT_NEAR(std::min(p_C.x() - lo.x(), hi.x() - p_C.x()), 0.015, 1e-9) << k;
+    EXPECT_NEAR(std::min(p_C.y() - lo.y(), hi.y() - p_C.y()), 0.015, 1e-9) << k;
+  }
+  for (int i = 0; i < 2; ++i)  // locating blocks: 25 mm up the casting's side
+    EXPECT_NEAR((X_TableW * blocks[i].X_WF.translation()).z() + blocks[i].half_size.z(), 0.065, 1e-12);
+  // The written cell has the riser; the layout passes; the casting on the table is refused.
+  const std::string dir = ftest::temp_dir("cell_riser");
+  const auto m = sim::load_mjcf_file(sim::write_cell(sc.robot, spec, setup.casting, dir).mjcf);
+  EXPECT_GE(mj_name2id(m.get(), mjOBJ_GEOM, "riser"), 0);
+  EXPECT_NO_THROW(sim::check_cell_layout(spec, nominal));
+  sim::CellSpec on_table = spec;
+  on_table.X_WC.translation() -= 0.04 * spec.X_WTable.linear().col(2);
+  try {
+    sim::check_cell_layout(on_table, nominal);
+    ADD_FAILURE() << "a casting 40 mm under its riser's top was accepted";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("expected the casting resting on the riser (40.0 mm over "
+                                         "the table top), got its lowest point 40.0 mm below"),
+              std::string::npos)
+        << e.what();
   }
 }
 

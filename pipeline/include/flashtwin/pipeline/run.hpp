@@ -58,9 +58,17 @@ struct ScenarioScan {
 double unseen_parting_fraction(const ScenarioScan& scan);
 
 /// The scan registration sees: the scan in {M} without the points on the cell's fixture
-/// blocks (grown by 3 mm), which the cell knows for a casting at its nominal placement; the
-/// whole scan for a randomly placed casting.
+/// blocks and riser (grown by 3 mm), which the cell knows for a casting at its nominal
+/// placement; the whole scan for a randomly placed casting.
 PointCloud registration_cloud(const Scenario& sc, const ScenarioScan& scan);
+
+/// Flash detection (perception::detect_flash with sc.detection) on a scan of the cell of
+/// `setup` without the points on its fixture (as registration_cloud leaves them out: the riser's
+/// top seen through a bolt hole is not flash); labels and regions index the whole scan, the
+/// fixture's points labelled kDetectIgnored.
+perception::DetectionResult detect_off_fixture(const Scenario& sc, const CellSetup& setup,
+                                               const PointCloud& cloud_M, const MeshBvh& cad_C,
+                                               const Pose& X_CM);
 
 /// Registration parameters for a cell scan: the table removed, normals facing {M}'s origin.
 perception::RegistrationParams cell_registration_params();

@@ -77,6 +77,15 @@ struct GrindParams {
   /// tip depth, the burr slides up its axis (down to the tip depth that still keeps the fin on
   /// the burr's straight side: its radius and 1 mm above the tip). Unset: no floor.
   std::optional<std::pair<Vec3, Vec3>> floor_C;
+  /// A block the casting stands on (the cell's riser), a floor of its own where the burr comes
+  /// over it: X_CR places its top face's centre in {C} (z_R up), half its in-plane extents.
+  /// Where the burr's lowest point lies within half + burr radius + floor_clearance of the
+  /// centre (along x_R and y_R) the burr keeps floor_clearance above that top as above floor_C.
+  struct Riser {
+    Pose X_CR = Pose::Identity();
+    Eigen::Vector2d half = Eigen::Vector2d::Zero();
+  };
+  std::optional<Riser> riser_C;
   double floor_clearance = 1e-3;  ///< [m]
   /// The arm and the tool (but the burr, which cuts) against the cell and the casting's CAD at
   /// each sample's configuration: a sample nearer than min_clearance is bad and re-oriented like

@@ -37,8 +37,15 @@ struct CellSpec {
   /// robot's limits. A robot description's `servo:` block replaces kp and damping.
   std::array<double, kNumJoints> kp{20000, 20000, 10000, 2000, 1500, 800};
   std::array<double, kNumJoints> damping{300, 300, 150, 20, 15, 8};  ///< joint damping [N·m·s/rad]
-  /// Fixture blocks; empty: the two locating blocks of fixture_blocks(), laid out beside the
-  /// casting when the cell is written.
+  /// Riser: a support block the casting stands on, so the burr grinding a fin low on the part
+  /// hangs below the part's bottom instead of in the table (a real cell's answer: the part on
+  /// raised pads). 0: the casting rests on the table top. The riser is the box under the
+  /// casting's lowest face (its footprint shrunk by riser_inset, at least 20 x 20 mm), from the
+  /// table top up to the casting's lowest point; it is a fixture block named "riser".
+  double riser_height = 0;     ///< [m]
+  double riser_inset = 0.015;  ///< [m] riser edges inside the casting's lowest face
+  /// Fixture blocks; empty: the two locating blocks of fixture_blocks() (and the riser), laid
+  /// out beside (under) the casting when the cell is written.
   std::vector<FixtureBlock> fixtures;
 };
 
@@ -128,19 +135,25 @@ void write_ground_truth(const Casting& casting, const Pose& X_WC, const std::str
 
 /// The pose of {C} in {W} that rests the casting on the table top: given the position (x, y)
 /// on the table [m] and an orientation R_TC relative to the table frame, z is chosen so the
-/// lowest point of the rotated casting touches the table.
+/// lowest point of the rotated casting touches the table, or the riser's top
+/// (spec.riser_height above the table) when the cell has one.
 Pose rest_on_table(const CellSpec& spec, const TriangleMesh& nominal, double x, double y,
                    const Mat3& R_TC);
 
 /// Compiles an MJCF file with MuJoCo. @throws InputError with MuJoCo's message.
 ModelSummary check_mjcf(const std::string& path);
 
-/// The default fixture of a placed casting: two locating blocks (24 x 60 x 25 mm, names
-/// fixture_left and fixture_right) standing on the table top on either side of the casting
+/// The default fixture of a placed casting: two locating blocks (24 x 60 mm, 25 mm over the
+/// riser's height, names fixture_left and fixture_right) standing on the table top on either
+/// side of the casting
 /// along its x axis (turned with its yaw about the table normal), centred on its y extent and
 /// 22 mm outside its bounds in {C} (clear of the flash and the burr grinding it). A block that would still cut into the placed mesh (a tilted
 /// casting) slides outward along its x axis until it is 22 mm clear of the mesh's part within
-/// the block's width and height. Reads spec.X_WTable and spec.X_WC; ignores spec.fixtures.
+/// the block's width and height. With spec.riser_height > 0 a third block, "riser", stands
+/// under the casting: its footprint the bounds (in the blocks' axes) of the placed mesh's
+/// vertices within 1 mm of its lowest point, shrunk by spec.riser_inset on each side (at least
+/// 10 mm half-width about their centre), from the table top up to the casting's lowest point.
+/// Reads spec.X_WTable, spec.X_WC and the riser keys; ignores spec.fixtures.
 std::vector<FixtureBlock> fixture_blocks(const CellSpec& spec, const TriangleMesh& nominal_C);
 
 /// Tolerances of check_cell_layout.
@@ -153,7 +166,7 @@ struct CellCheckParams {
 
 /// Checks that the cell makes sense before anything runs in it:
 ///  - the casting's footprint (its placed nominal mesh in the table plane) lies on the table top
-///    and its lowest point on the top surface;
+///    and its lowest point on the top surface (on the riser's top with a riser);
 ///  - every fixture block (spec.fixtures, or fixture_blocks when empty) stands on the table top
 ///    (bottom on the surface, centre over the top) and does not cut into the casting's nominal
 ///    mesh (exact box-triangle and inside tests against the mesh);
