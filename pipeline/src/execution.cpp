@@ -124,13 +124,19 @@ double duration_of(const Motion& m) {
 }
 
 PlanningWorld::PlanningWorld(const Scenario& sc, const CellSetup& setup, const MeshBvh& cad_C,
-                             const Pose& X_WC_plan, double burr_radius) {
+                             const Pose& X_WC_plan, double burr_radius, const std::vector<Vec3>& flash_C) {
   sim::CellSpec spec = setup.spec;
   if (spec.fixtures.empty()) spec.fixtures = sim::fixture_blocks(spec, setup.casting.nominal);
   model_ = sim::load_mjcf_string(sim::cell_mjcf(sc.robot, spec), "planning_world.xml");
   data_ = sim::make_data(model_.get());
   cell_ = std::make_unique<sim::CellCollision>(*model_, cad_C, X_WC_plan, nullptr,
                                                sim::shank_radius_for(sc.robot.tool, burr_radius));
+  if (!flash_C.empty()) {
+    std::vector<Vec3> flash_W;
+    flash_W.reserve(flash_C.size());
+    for (const Vec3& p : flash_C) flash_W.push_back(X_WC_plan * p);
+    cell_->set_known_flash(flash_W);
+  }
   for (int i = 0; i < kNumJoints; ++i)
     qadr_[i] = model_->jnt_qposadr[sim::require_id(model_.get(), mjOBJ_JOINT, "joint" + std::to_string(i + 1))];
 }
@@ -145,13 +151,14 @@ planner::ClearanceFn PlanningWorld::clearance(double reach) {
 }
 
 JobMotions plan_job_motions(const Scenario& sc, const ScenarioScan& ss, const Pose& X_WC_plan,
-                            const MeshBvh& cad_C, const std::vector<PlannedPath>& plans) {
+                            const MeshBvh& cad_C, const std::vector<PlannedPath>& plans,
+                            const std::vector<Vec3>& flash_C) {
   JobMotions out;
   out.min_clearance = sim::CellCollision::kReach;
   if (plans.empty()) return out;
   // The planner's world: the cell's obstacles and the CAD where the plan put the casting; no
   // flash geometry. (Transits are with the mounted burr: a rack burr's own shank is thinner.)
-  PlanningWorld world(sc, ss.setup, cad_C, X_WC_plan, sc.robot.tool.radius);
+  PlanningWorld world(sc, ss.setup, cad_C, X_WC_plan, sc.robot.tool.radius, flash_C);
   const planner::ClearanceFn clearance = world.clearance();
   planner::TransitParams tp;
   tp.clearance = sc.execution.transit_clearance;

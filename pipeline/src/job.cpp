@@ -391,6 +391,7 @@ JobResult run_job(const JobInputs& in) {
 
   const MeshBvh cad_bvh(setup.casting.nominal);
   perc.detection = perception::detect_flash(scan_M, cad_bvh, perc.X_CM_est, sc.detection);
+  perc.flash_C = detected_flash_C(perc.detection, scan_M, perc.X_CM_est);
   write_paths(dir.string(), perc.detection);
   m["paths.count"] = perc.detection.paths.size();
 

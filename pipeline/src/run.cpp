@@ -401,6 +401,14 @@ std::vector<planner::GrindResult> plan_in_pieces(const RobotModel& robot, const 
 
 }  // namespace
 
+std::vector<Vec3> detected_flash_C(const perception::DetectionResult& det, const PointCloud& scan_M,
+                                   const Pose& X_CM) {
+  std::vector<Vec3> out;
+  for (const auto& region : det.regions)
+    for (const std::uint32_t i : region.points) out.push_back(X_CM * scan_M.points[i].cast<double>());
+  return out;
+}
+
 PointCloud registration_cloud(const Scenario& sc, const ScenarioScan& ss) {
   return subset(ss.scan.result.cloud_M, off_fixture(ss.scan.result.cloud_M, sc, ss.setup, kFixtureMargin));
 }
@@ -458,6 +466,7 @@ Perception perceive(const Scenario& sc, const ScenarioScan& ss, const RunOptions
     progress(opt, "detection", 0.3);
     const MeshBvh cad_bvh(setup.casting.nominal);
     p.detection = detect_off_fixture(sc, ss.setup, ss.scan.result.cloud_M, cad_bvh, p.X_CM_est);
+    p.flash_C = detected_flash_C(p.detection, ss.scan.result.cloud_M, p.X_CM_est);
   }
   p.time_s = seconds_since(t0);
   return p;
@@ -597,6 +606,7 @@ Plans plan_setup(const Scenario& sc, const CellSetup& setup, const Perception& p
   const MeshBvh cad_C(setup.casting.nominal);
   const Pose X_WC_plan = setup.spec.X_WB * X_BC_plan;
   out.X_WC_plan = X_WC_plan;
+  out.flash_C = perc.flash_C;
   std::map<double, std::unique_ptr<PlanningWorld>> worlds;
   const auto clearance_for = [&](double burr_radius) {
     auto& w = worlds[burr_radius];
@@ -952,7 +962,7 @@ RunResult run_scenario(const Scenario& sc, const RunOptions& opt) {
         for (const auto& pp : pl.paths) motions.push_back(motion_of(pp));
         return motions;
       }
-      JobMotions job = plan_job_motions(sc, s, pl.X_WC_plan, exec.grid().nominal(), pl.paths);
+      JobMotions job = plan_job_motions(sc, s, pl.X_WC_plan, exec.grid().nominal(), pl.paths, pl.flash_C);
       transits += job.transits;
       lifted += job.lifted;
       left_alone += job.refused_paths.size() + job.home_refused;

@@ -297,11 +297,7 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
   }
 
   sim::CellSpec& cell = sc.cell;
-  // The casting stands on a riser 40 mm over the table by default (`cell.riser`): the burr
-  // grinding a fin low on the part (a housing's flange, a bracket's parting line 7 mm up) hangs
-  // up to its 20 mm length below the fin, under the part's bottom; on the table it cut into the
-  // table top. 40 mm leaves the collet (r 12.5 mm) room under a tilted burr as well.
-  cell.riser_height = 0.04;
+  bool riser_given = false;
   if (root.has("cell")) {
     const ConfigNode c = root.at("cell");
     cell.X_WB = c.get_pose("robot_base", cell.X_WB);
@@ -321,6 +317,7 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
         t.fail("expected the table top above the floor by more than its thickness");
     }
     if (c.has("riser")) {
+      riser_given = true;
       const ConfigNode r = c.at("riser");
       cell.riser_height = r.get_double("height", 0.0, 0.5, cell.riser_height);
       cell.riser_inset = r.get_double("inset", 0.0, 0.2, cell.riser_inset);
@@ -372,6 +369,14 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
       p.fail("expected a position on the table top (|x| <= " + std::to_string(ts.x() / 2) +
              ", |y| <= " + std::to_string(ts.y() / 2) + " m)");
   }
+
+  // A part held by the fixture stands on a riser 40 mm over the table unless `cell.riser` says
+  // otherwise: the burr grinding a fin low on the part (a housing's flange, a bracket's parting
+  // line 7 mm up) hangs up to its 20 mm length below the fin, under the part's bottom; on the
+  // table it cut into the table top. A randomly placed part lies on the table (no fixture is
+  // laid out for it before it lands; raised, a tilted part's high walls took the forearm into
+  // the scanner head).
+  if (!riser_given) cell.riser_height = pl.random ? 0.0 : 0.04;
 
   sc.scan.views = sim::default_scan_views();
   sc.scan.seed = sc.seed;

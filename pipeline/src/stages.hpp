@@ -20,13 +20,19 @@ struct Perception {
   perception::RegistrationResult registration;
   perception::DetectionResult detection;  ///< ran only with a confident pose
   Pose X_CM_est = Pose::Identity();       ///< the scanner {M} in the casting {C}, estimated
+  std::vector<Vec3> flash_C;              ///< the detected flash regions' points in {C}
   double time_s = 0;
 };
+
+/// The points of detection's flash regions in {C} (scan points mapped by X_CM).
+std::vector<Vec3> detected_flash_C(const perception::DetectionResult& det, const PointCloud& scan_M,
+                                   const Pose& X_CM);
 
 /// One setup's plans.
 struct Plans {
   std::vector<PlannedPath> paths;  ///< every grinding motion (a path in pieces: one per piece)
   Pose X_WC_plan = Pose::Identity();  ///< where the plan puts the casting ({W}; a drill's offset undone)
+  std::vector<Vec3> flash_C;  ///< the flash perception found ({C}): transits keep clear of it
   std::vector<std::size_t> failed_paths;  ///< detected paths that could not be planned
   std::string first_failure;
   double time_s = 0;

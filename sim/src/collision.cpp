@@ -1,6 +1,8 @@
 #include "flashtwin/sim/collision.hpp"
 
 #include <algorithm>
+#include <array>
+#include <set>
 #include <cmath>
 
 #include "flashtwin/core/errors.hpp"
@@ -109,6 +111,8 @@ CellCollision::CellCollision(const mjModel& m, const MeshBvh& casting_C, const P
       rg.body = b;
       rg.name = name.empty() ? name_of(m, mjOBJ_BODY, b) : name;
       rg.on_base_links = link3 < 0 || !below(m, b, link3);
+      rg.type = type;
+      rg.size = size;
       if (type == mjGEOM_CAPSULE || type == mjGEOM_SPHERE) {
         // Balls along the axis a quarter radius apart.
         const double r = size[0], hl = type == mjGEOM_CAPSULE ? size[1] : 0.0;
@@ -142,6 +146,33 @@ CellCollision::CellCollision(const mjModel& m, const MeshBvh& casting_C, const P
   mj_kinematics(&m, dp.get());
   for (Obstacle& o : obstacles_) o.X_WG = geom_pose(*dp, o.geom);
   for (const Vec3& v : casting_C_.mesh().vertices) casting_box_W_.extend(X_WC * v);
+}
+
+void CellCollision::set_known_flash(const std::vector<Vec3>& points_W, double cell) {
+  if (!(cell > 0)) throw ArgumentError("set_known_flash: expected a cell size > 0 [m]");
+  known_flash_W_.clear();
+  known_flash_box_W_.setEmpty();
+  std::set<std::array<long, 3>> seen;  // the cubes kept
+  for (const Vec3& p : points_W) {
+    const std::array<long, 3> key{std::lround(std::floor(p.x() / cell)), std::lround(std::floor(p.y() / cell)),
+                                  std::lround(std::floor(p.z() / cell))};
+    if (!seen.insert(key).second) continue;
+    known_flash_W_.push_back(p);
+    known_flash_box_W_.extend(p);
+  }
+}
+
+double CellCollision::geom_distance(const RobotGeom& rg, const Vec3& q) {
+  switch (rg.type) {
+    case mjGEOM_SPHERE:
+      return q.norm() - rg.size[0];
+    case mjGEOM_CAPSULE:
+      return Vec3(q.x(), q.y(), q.z() - std::clamp(q.z(), -rg.size[1], rg.size[1])).norm() - rg.size[0];
+    case mjGEOM_CYLINDER:
+      return cylinder_distance(q, rg.size[0], rg.size[1]);
+    default:  // mjGEOM_BOX
+      return box_distance(q, rg.size);
+  }
 }
 
 bool CellCollision::checks_flash(std::size_t k) const {
@@ -197,6 +228,14 @@ CollisionHit CellCollision::check_geom(const mjData& d, std::size_t k, double re
   if (checks_flash(k)) {
     const CollisionHit f = check_flash(d, k);
     if (f.clearance < best.clearance) best = f;
+  }
+  if (!known_flash_W_.empty() && known_flash_box_W_.exteriorDistance(X_WG.translation()) < far) {
+    const Pose X_GW = X_WG.inverse();
+    for (const Vec3& p_W : known_flash_W_) {
+      if ((p_W - X_WG.translation()).norm() >= rg.extent + best.clearance) continue;
+      const double c = geom_distance(rg, X_GW * p_W);
+      if (c < best.clearance) best = {c, rg.name, "flash (detected)", p_W};
+    }
   }
   return best;
 }

@@ -797,6 +797,40 @@ TEST(Collision, ClearanceAboveTheTableIsTheBurrsHeightAndInsideItIsADepth) {
   EXPECT_TRUE(shank_hit) << "no pose over the top face put the shank into the casting";
 }
 
+// Flash the planner knows of (perception's detected points) is an obstacle of every robot geom,
+// the burr's too: a transit planned only against the CAD ran its burr through 8 mm fins (cover
+// seed 907, 10 mm deep, 130 mm off its path).
+TEST(Collision, DetectedFlashIsAnObstacleOfTheBurrToo) {
+  const DefaultCell& cell = default_cell();
+  CellCollision collision(*cell.model, *collision_cell().cad, cell.spec.X_WC);
+  const Vec3 tip_W = beside_casting(cell, 0.03);
+  const Vec3 up_W = cell.spec.X_WTable.linear().col(2);
+  const Vec3 side_W = cell.spec.X_WTable.linear().col(0);
+  const MjDataPtr d = make_data(cell.model.get());
+  const Vector6 q = tool_down_at(cell, tip_W);
+  for (int i = 0; i < kNumJoints; ++i)
+    d->qpos[cell.model->jnt_qposadr[mj_name2id(cell.model.get(), mjOBJ_JOINT,
+                                                ("joint" + std::to_string(i + 1)).c_str())]] = q[i];
+  mj_kinematics(cell.model.get(), d.get());
+  const double r = collision_cell().tool.radius;
+  // A point on the burr's axis 10 mm up from its tip lies r deep in it.
+  collision.set_known_flash({tip_W + 0.01 * up_W});
+  const CollisionHit in = collision.check(*d);
+  EXPECT_TRUE(in.colliding());
+  EXPECT_EQ(in.robot_geom, "burr");
+  EXPECT_EQ(in.obstacle, "flash (detected)");
+  EXPECT_NEAR(in.clearance, -r, 1e-9);
+  // 16 mm to the side of the axis: 16 mm - r clear, nearer than the table 30 mm below.
+  collision.set_known_flash({tip_W + 0.01 * up_W + 0.016 * side_W});
+  const CollisionHit beside = collision.check(*d);
+  EXPECT_EQ(beside.obstacle, "flash (detected)");
+  EXPECT_NEAR(beside.clearance, 0.016 - r, 1e-9);
+  // Without it the table is nearest.
+  collision.set_known_flash({});
+  EXPECT_NE(collision.check(*d).obstacle, "flash (detected)");
+  EXPECT_THROW(collision.set_known_flash({tip_W}, 0.0), ArgumentError);
+}
+
 TEST(Collision, TheExecutorCountsStepsInContactAndNoneOnAClearMove) {
   const DefaultCell& cell = default_cell();
   const CellCollision& collision = *collision_cell().collision;

@@ -56,9 +56,12 @@ class PlanningWorld {
   /// @param cad_C the casting's CAD tree in {C}, kept by reference
   /// @param X_WC_plan where the plan puts the casting ({W})
   /// @param burr_radius the burr planned with (its shank: sim::shank_radius_for)
+  /// @param flash_C flash the planner knows of (detected points, {C}): obstacles of every robot
+  ///        geom, the burr's too (sim::CellCollision::set_known_flash); empty for grinding
+  ///        samples, whose burr cuts it
   /// @throws InputError (the cell's MJCF)
   PlanningWorld(const Scenario& sc, const CellSetup& setup, const MeshBvh& cad_C,
-                const Pose& X_WC_plan, double burr_radius);
+                const Pose& X_WC_plan, double burr_radius, const std::vector<Vec3>& flash_C = {});
   PlanningWorld(const PlanningWorld&) = delete;
   PlanningWorld& operator=(const PlanningWorld&) = delete;
   /// The robot's clearance at a configuration (valid while this object lives); nothing nearer
@@ -88,9 +91,11 @@ struct JobMotions {
 };
 /// @param X_WC_plan the casting's pose the plan was made for ({W})
 /// @param cad_C the casting's CAD tree in {C}
+/// @param flash_C the flash perception found ({C}): transits keep their clearance from it too
 /// @throws InputError (the cell's MJCF), ArgumentError (transit settings)
 JobMotions plan_job_motions(const Scenario& sc, const ScenarioScan& ss, const Pose& X_WC_plan,
-                            const MeshBvh& cad_C, const std::vector<PlannedPath>& plans);
+                            const MeshBvh& cad_C, const std::vector<PlannedPath>& plans,
+                            const std::vector<Vec3>& flash_C = {});
 
 /// What execution and the re-scan produced, for the metrics, the report and the video.
 struct ExecutionSummary {

@@ -63,6 +63,12 @@ class CellCollision {
   CellCollision(const mjModel& m, const MeshBvh& casting_C, const Pose& X_WC,
                 const MaterialGrid* flash = nullptr, double shank_radius = -1);
 
+  /// Flash a planner knows of (perception's detected flash points, {W}) as obstacles of every
+  /// robot geom, the burr included (a transit must not run through a fin: 8 mm fins stood in a
+  /// transit planned 8 mm off the CAD and its burr hit them at transit speed). Points are thinned
+  /// to one per `cell`-sized cube. Obstacle "flash (detected)". Call before any check.
+  void set_known_flash(const std::vector<Vec3>& points_W, double cell = 2e-3);
+
   /// Number of robot geoms checked.
   std::size_t robot_geoms() const { return robot_.size(); }
   /// The closest approach of robot geom k (0 ≤ k < robot_geoms()) to any obstacle, with the
@@ -91,6 +97,8 @@ class CellCollision {
     int geom = -1, body = -1;
     std::string name;
     std::vector<Ball> balls;
+    int type = 0;              // mjGEOM_CAPSULE, _SPHERE, _CYLINDER or _BOX
+    Vec3 size = Vec3::Zero();  // MuJoCo's geom size (radius, half-length; box half extents)
     double extent = 0;
     bool on_base_links = false;  // link 1 or 2: not checked against the base and pedestal
   };
@@ -103,6 +111,8 @@ class CellCollision {
     bool under_base = false;  // base housing or pedestal
   };
   double obstacle_distance(const Obstacle& o, const Vec3& p_W) const;
+  // Signed distance of point q (in robot geom rg's frame) to the geom's solid: < 0 inside.
+  static double geom_distance(const RobotGeom& rg, const Vec3& q);
 
   std::vector<RobotGeom> robot_;
   std::vector<Obstacle> obstacles_;
@@ -110,6 +120,8 @@ class CellCollision {
   Pose X_CW_;
   Eigen::AlignedBox3d casting_box_W_;  // the CAD body's bounds in {W}
   const MaterialGrid* flash_ = nullptr;
+  std::vector<Vec3> known_flash_W_;
+  Eigen::AlignedBox3d known_flash_box_W_;
 };
 
 /// Checks a running simulation at every step without redoing the geometry where nothing can
