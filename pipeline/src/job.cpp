@@ -389,8 +389,10 @@ JobResult run_job(const JobInputs& in) {
   m["X_BC"] = pose_json(X_BC);
   if (!reg.confident) return refuse(std::move(r), "pose not confident: " + reg.message, dir);
 
+  // The fixture (locating blocks, riser) holds the part: laid out round it where it was found.
+  setup.spec.X_WC = setup.spec.X_WM * perc.X_CM_est.inverse();
   const MeshBvh cad_bvh(setup.casting.nominal);
-  perc.detection = perception::detect_flash(scan_M, cad_bvh, perc.X_CM_est, sc.detection);
+  perc.detection = detect_off_fixture(sc, setup, scan_M, cad_bvh, perc.X_CM_est);
   perc.flash_C = detected_flash_C(perc.detection, scan_M, perc.X_CM_est);
   write_paths(dir.string(), perc.detection);
   m["paths.count"] = perc.detection.paths.size();

@@ -212,11 +212,14 @@ double overlap_depth(const TriangleMesh& mesh_F, const Vec3& h) {
   double depth = 0;
   for (const Vec3& v : mesh_F.vertices)
     if ((v.cwiseAbs() - h).maxCoeff() < 0) depth = std::max(depth, (h - v.cwiseAbs()).minCoeff());
+  // The box's points on a 9 x 9 x 9 grid inside the mesh: a tall block beside a thin raised
+  // plate meets it only between its corners' heights.
   const MeshBvh bvh(mesh_F);
-  for (int i = -1; i <= 1; ++i)
-    for (int j = -1; j <= 1; ++j)
-      for (int k = -1; k <= 1; ++k) {
-        const Vec3 p(i * h.x(), j * h.y(), k * h.z());
+  constexpr int kSteps = 4;
+  for (int i = -kSteps; i <= kSteps; ++i)
+    for (int j = -kSteps; j <= kSteps; ++j)
+      for (int k = -kSteps; k <= kSteps; ++k) {
+        const Vec3 p = Vec3(i, j, k).cwiseProduct(h) / kSteps;
         if (winding_number(mesh_F, p) > 0.5) depth = std::max(depth, bvh.closest(p).distance);
       }
   return depth;

@@ -210,7 +210,8 @@ TEST(Cell, CastingRestsOnTheTableInAnyOrientation) {
     double min_z = 1e9;
     for (const auto& v : setup.casting.nominal.vertices)
       min_z = std::min(min_z, (setup.spec.X_WC * v).z());
-    EXPECT_NEAR(min_z, setup.spec.X_WTable.translation().z(), 1e-12);
+    // On the riser's top (the scenario file's placement was not random when it was read).
+    EXPECT_NEAR(min_z, setup.spec.X_WTable.translation().z() + setup.spec.riser_height, 1e-12);
   }
 }
 
@@ -599,9 +600,10 @@ TEST(CellLayout, FixtureBlockInTheCastingOrOffTheTableIsRefused) {
       EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos) << e.what();
     }
   };
-  // Into the plate: the right block moved to the casting's origin (standing on the table).
+  // Into the plate: the right block moved under the casting's origin (standing on the table).
   sim::CellSpec into = spec;
-  into.fixtures[1].X_WF.translation() = spec.X_WC * Vec3(0, 0, into.fixtures[1].half_size.z());
+  into.fixtures[1].X_WF.translation() =
+      spec.X_WC * Vec3(0, 0, into.fixtures[1].half_size.z() - spec.riser_height);
   refused(into, "casting.placement: expected fixture block 'fixture_right'");
   refused(into, "clear of the casting's nominal mesh");
   // Slid towards the casting along its x axis: touching within the tolerance (0.1 mm) passes,
