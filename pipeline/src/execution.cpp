@@ -11,9 +11,9 @@
 
 #include "flashtwin/core/format.hpp"
 #include "flashtwin/core/io.hpp"
-#include "flashtwin/pipeline/run.hpp"
 #include "flashtwin/core/mesh_query.hpp"
 #include "flashtwin/perception/flash_detection.hpp"
+#include "flashtwin/pipeline/run.hpp"
 #include "flashtwin/planner/transit.hpp"
 #include "flashtwin/pipeline/run.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
@@ -156,8 +156,8 @@ JobMotions plan_job_motions(const Scenario& sc, const ScenarioScan& ss, const Po
   JobMotions out;
   out.min_clearance = sim::CellCollision::kReach;
   if (plans.empty()) return out;
-  // The planner's world: the cell's obstacles and the CAD where the plan put the casting; no
-  // flash geometry. (Transits are with the mounted burr: a rack burr's own shank is thinner.)
+  // The planner's world: the cell's obstacles, the CAD where the plan put the casting and the
+  // flash perception found there. (Transits are with the mounted burr: a rack burr's own shank is thinner.)
   PlanningWorld world(sc, ss.setup, cad_C, X_WC_plan, sc.robot.tool.radius, flash_C);
   const planner::ClearanceFn clearance = world.clearance();
   planner::TransitParams tp;

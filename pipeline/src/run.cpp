@@ -426,7 +426,6 @@ perception::DetectionResult detect_off_fixture(const Scenario& sc, const CellSet
   return det;
 }
 
-
 namespace {
 
 // --- Stages of a run. Each writes its metrics into the json it is given (a second setup's go

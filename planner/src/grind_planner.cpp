@@ -205,11 +205,10 @@ struct Context {
     // Above the floor: the burr slides up its axis where its lowest point would come nearer the
     // floor than the clearance (a fin low on the casting), not above the depth that keeps the fin
     // on the burr's straight side.
-    if (P.floor_C || P.riser_C) {
+    const double up = P.floor_C || P.riser_C ? -X.linear().col(2).dot(floor_normal()) : 0.0;
+    if (up > 0.1) {  // the tip's rise per unit of less tip depth
       const double short_by = floor_shortfall(X);
-      const Vec3 z = X.linear().col(2);
-      const double up = -z.dot(floor_normal());  // the tip's rise per unit of less tip depth
-      if (up > 0.1 && short_by > 0) {
+      if (short_by > 0) {
         const double min_depth = std::min(tip_depth, radius + 1e-3);
         const double depth = std::max(min_depth, tip_depth - short_by / up);
         X = grind_tool_pose(g.p, n_wall, g.t, f_wall, x_ref, g.extra, l, tl, sp, radius, length, depth, off);

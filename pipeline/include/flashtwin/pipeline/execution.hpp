@@ -48,7 +48,8 @@ Motion motion_of(const PlannedPath& plan);
 double duration_of(const Motion& m);
 
 /// The planner's world: the cell's obstacles (robot base, table, fixture, scanner head) from
-/// its layout and the casting's CAD where perception put it; no flash (the planner knows none).
+/// its layout, the casting's CAD where perception put it and, for transits, the flash
+/// perception detected (never the true flash).
 /// Its clearance function is what plan_grind and plan_transit check configurations against
 /// (sim::CellCollision: the arm's links and the tool but the burr's cut). Not thread-safe.
 class PlanningWorld {
