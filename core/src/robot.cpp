@@ -133,6 +133,7 @@ RobotModel parse_robot(const std::string& yaml_text, const std::string& name) {
   r.tool.shank_length = tool.get_double("shank_length", 0.0, 0.3, r.tool.shank_length);
   r.tool.collet_radius = tool.get_double("collet_radius", 1e-4, 0.1, r.tool.collet_radius);
   r.tool.collet_length = tool.get_double("collet_length", 0.0, 0.3, r.tool.collet_length);
+  r.tool.rack_collet_radius = tool.get_double("rack_collet_radius", 1e-4, 0.1, r.tool.rack_collet_radius);
   if (r.tool.length + r.tool.shank_length + r.tool.collet_length > r.tool.X_ET.translation().norm())
     tool.fail("expected length + shank_length + collet_length within the tool's reach |X_ET| = " +
               std::to_string(r.tool.X_ET.translation().norm()) + " m");

@@ -129,8 +129,9 @@ PlanningWorld::PlanningWorld(const Scenario& sc, const CellSetup& setup, const M
   if (spec.fixtures.empty()) spec.fixtures = sim::fixture_blocks(spec, setup.casting.nominal);
   model_ = sim::load_mjcf_string(sim::cell_mjcf(sc.robot, spec), "planning_world.xml");
   data_ = sim::make_data(model_.get());
-  cell_ = std::make_unique<sim::CellCollision>(*model_, cad_C, X_WC_plan, nullptr,
-                                               sim::shank_radius_for(sc.robot.tool, burr_radius));
+  const sim::BurrHolder holder = sim::holder_for(sc.robot.tool, burr_radius);
+  cell_ = std::make_unique<sim::CellCollision>(*model_, cad_C, X_WC_plan, nullptr, holder.shank_radius,
+                                               holder.collet_radius);
   if (!flash_C.empty()) {
     std::vector<Vec3> flash_W;
     flash_W.reserve(flash_C.size());
@@ -229,13 +230,15 @@ void Execution::run_motions(const ScenarioScan& ss, const std::vector<Motion>& m
   const int setup_index = static_cast<int>(summary_.X_CB.size());
   summary_.X_CB.push_back(ss.setup.spec.X_WC.inverse() * ss.setup.spec.X_WB);
   // The twin's collision measurement: the casting where it truly stands, its standing flash;
-  // one per burr (a rack burr stands on its own, thinner shank).
+  // one per burr (a rack burr stands on its own, thinner shank in the slim holder).
   std::map<double, std::unique_ptr<sim::CellCollision>> cells;
   const auto cell_for = [&](double burr_radius) -> const sim::CellCollision* {
     auto& c = cells[burr_radius];
-    if (!c)
+    if (!c) {
+      const sim::BurrHolder holder = sim::holder_for(sc_.robot.tool, burr_radius);
       c = std::make_unique<sim::CellCollision>(*model, grid.nominal(), ss.setup.spec.X_WC, &grid,
-                                               sim::shank_radius_for(sc_.robot.tool, burr_radius));
+                                               holder.shank_radius, holder.collet_radius);
+    }
     return c.get();
   };
   const Motion* previous = nullptr;

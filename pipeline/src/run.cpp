@@ -511,8 +511,32 @@ std::vector<Curve> curves_of(const perception::DetectionResult& det) {
   return out;
 }
 
+// Whether a closed path runs round a hole: its wall normals face its centroid (a round
+// flange's outline faces away).
+bool is_hole(const planner::GrindPath& gp) {
+  if (!gp.closed || gp.points_C.empty() || gp.normals_C.size() != gp.points_C.size()) return false;
+  Vec3 centroid = Vec3::Zero();
+  for (const Vec3& p : gp.points_C) centroid += p;
+  centroid /= static_cast<double>(gp.points_C.size());
+  double inward = 0;
+  for (std::size_t i = 0; i < gp.points_C.size(); ++i)
+    inward += gp.normals_C[i].dot(centroid - gp.points_C[i]) > 0 ? 1 : -1;
+  return inward > 0;
+}
+
+// Whether every piece planned with no sample leaning the burr off the wall (tilt).
+bool upright(const std::vector<planner::GrindResult>& pieces) {
+  for (const auto& g : pieces) {
+    if (!g.ok()) return false;
+    for (const auto& smp : g.samples)
+      if (smp.extra_tilt != 0) return false;
+  }
+  return true;
+}
+
 // A path's plan, in pieces when the wrist cannot follow it in one go (plan_in_pieces), with a
-// smaller burr from the rack when the hole is too narrow for the mounted one.
+// smaller burr from the rack when the hole is too narrow for the mounted one or the mounted one
+// cannot grind it upright.
 // `clearance_for(r)`: the planner's world with a burr of radius r (its shank).
 std::vector<planner::GrindResult> plan_path(
     const Scenario& sc, planner::GrindParams P, const Pose& X_BC_plan, const planner::GrindPath& gp,
@@ -522,8 +546,14 @@ std::vector<planner::GrindResult> plan_path(
   try {
     if (sc.clearance_check) P.clearance = clearance_for(sc.robot.tool.radius);
     pieces = plan_in_pieces(sc.robot, X_BC_plan, gp, P, kMaxPieces);
-    // A hole too narrow for the mounted burr: the largest burr of the rack that fits.
-    if (pieces.front().status == planner::GrindStatus::kToolTooLarge) {
+    // A hole too narrow for the mounted burr: the largest burr of the rack that fits. A hole the
+    // mounted burr fits but cannot grind upright (its collet nut too near a wall beside the hole,
+    // a joint limit): the largest rack burr (in its slim holder) that grinds it upright. (Leaning
+    // about the hole's own wall turns the tool axis round a cone once per turn of the hole: the
+    // wrist whirls and the spline through those samples swung the burr 75 mm out of a housing's
+    // bolt hole and into it again, seed 602.)
+    const bool too_large = pieces.front().status == planner::GrindStatus::kToolTooLarge;
+    if (too_large || (is_hole(gp) && !upright(pieces))) {
       std::vector<double> rack = sc.tool_rack;
       std::sort(rack.rbegin(), rack.rend());
       for (const double r : rack) {
@@ -533,6 +563,7 @@ std::vector<planner::GrindResult> plan_path(
         if (sc.clearance_check) P.clearance = clearance_for(r);
         auto ps = plan_in_pieces(smaller, X_BC_plan, gp, P, kMaxPieces);
         if (ps.front().status == planner::GrindStatus::kToolTooLarge) continue;
+        if (!too_large && !upright(ps)) continue;
         spdlog::info("path {}: burr of radius {:.1f} mm from the tool rack ({})", k, r * 1e3,
                      ps.front().ok() ? "planned" : ps.front().message);
         tool_changes += ps.front().ok();

@@ -451,6 +451,8 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     sc.robot.tool.shank_length = t.get_double("shank_length", 0.0, 0.3, sc.robot.tool.shank_length);
     sc.robot.tool.collet_radius = t.get_double("collet_radius", 1e-4, 0.1, sc.robot.tool.collet_radius);
     sc.robot.tool.collet_length = t.get_double("collet_length", 0.0, 0.3, sc.robot.tool.collet_length);
+    sc.robot.tool.rack_collet_radius =
+        t.get_double("rack_collet_radius", 1e-4, 0.1, sc.robot.tool.rack_collet_radius);
     if (sc.robot.tool.length < sc.robot.tool.radius)
       t.fail("expected length >= radius (the ball-ended burr needs it)");
   }

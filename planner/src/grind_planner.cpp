@@ -474,9 +474,9 @@ Fix try_fix(const Context& C, const Seed& seed, const SeedOutcome& out, std::siz
 
 // The re-orientation of the bad range a..b: the first spin about the tool axis that works;
 // else a lead (the axis turned within the wall's plane keeps the burr's side flush with the
-// wall), the smallest that works; else a lean with tilt (the side then stands off the wall at
-// one end of the cutting length and leaves a wedge of flash: 1.5 mm of a fin's end on a
-// round flange at 11°), the smallest. Within a level, the best manipulability.
+// wall), the smallest that works; else a lean with tilt, the smallest (shank away from the wall:
+// the ball end cuts at the root, grind_tool_pose; toward it: the upper end's rim stands off
+// the fin by up to 1 mm × sin tilt). Within a level, the best manipulability.
 Fix best_fix(const Context& C, const Seed& seed, const SeedOutcome& out, std::size_t a,
              std::size_t b, const std::vector<Candidate>& cands) {
   Fix best;
@@ -811,19 +811,35 @@ Pose grind_tool_pose(const Vec3& p, const Vec3& n, const Vec3& t, const Vec3& f,
   // Shank direction (tip → flange) and the tool axis z_T.
   const Vec3 w = std::cos(tilt) * (std::cos(lead) * f + std::sin(lead) * t) + std::sin(tilt) * n;
   const Vec3 z = -w.normalized();
-  // Smallest axis offset keeping the whole cutting length out of the wall plane.
+  // Smallest axis offset keeping the whole burr out of the wall plane. The burr is ball-ended
+  // (every cell burr is: ToolEnd::kBall): a cylinder from one radius up its axis, a hemisphere
+  // of its radius below.
   const double c = z.dot(n);
-  // Tilted (c ≠ 0), the burr touches the wall plane only at one end of its cutting length and
-  // stands off it at the fin by that end's axial distance from the fin × |c|: with the fin
-  // halfway along a 20 mm burr, 0.46 mm at 0.046 rad and 1.3 mm at 0.13 rad (cover 9148, 9103:
-  // that much flash left along the stretch). The burr slides along its axis until the end that
-  // touches comes within kEndMargin of the fin (the fin's half thickness and some), the
-  // stand-off then kEndMargin·|c|; on the way there no more than kStandoff (continuous in c).
   constexpr double kEndMargin = 1e-3, kStandoff = 0.05e-3;
-  if (c > 1e-12) tip_depth = std::max(tip_depth, std::min(length - kEndMargin, length - kStandoff / c));
-  else if (c < -1e-12) tip_depth = std::min(tip_depth, std::max(kEndMargin, kStandoff / -c));
-  const double off = extra_offset + radius * std::sqrt(std::max(0.0, 1 - c * c)) -
-                     std::min(tip_depth * c, (tip_depth - length) * c);
+  double off = radius;
+  if (c > 1e-12) {
+    // Shank toward the wall: the burr touches the wall plane only at its upper end's rim and
+    // stands off it at the fin by that end's axial distance from the fin × c: with the fin
+    // halfway along a 20 mm burr, 0.46 mm at 0.046 rad and 1.3 mm at 0.13 rad (cover 9148,
+    // 9103: that much flash left along the stretch). The burr slides down its axis until its
+    // upper end comes within kEndMargin of the fin (the fin's half thickness and some), the
+    // stand-off then kEndMargin·c; on the way there no more than kStandoff (continuous in c).
+    tip_depth = std::max(tip_depth, std::min(length - kEndMargin, length - kStandoff / c));
+    off = radius * std::sqrt(std::max(0.0, 1 - c * c)) + (length - tip_depth) * c;
+  } else if (c < -1e-12) {
+    // Shank away from the wall: the ball touches the wall plane (its centre one radius off it)
+    // and the straight side above the ball stands off it by r(1 - cos) + s·|c| at axial height s
+    // over the ball's centre. The burr slides up its axis until the fin is within kStandoff/|c|
+    // of the ball's centre (continuous in c), at the most until the ball's centre is on the fin
+    // plane: there the ball touches the wall at the root and, whatever the lean, the flash left
+    // is what a sphere leaves on a fin of thickness t, t²/(8r) (0.05 mm for a 1.5 mm fin on a
+    // 12 mm burr). (It was the flat end's rim that was put on the wall: on a ball-ended burr
+    // that stood the ball 3-4 mm off the root at 0.26 rad: user_mesh 701-710, the leans beside
+    // the bracket's upright leg.)
+    if (tip_depth > radius) tip_depth = std::max(radius, std::min(tip_depth, radius + kStandoff / -c));
+    off = radius + std::max(0.0, tip_depth - radius) * -c;
+  }
+  off += extra_offset;
   if (axis_offset) *axis_offset = off;
   Vec3 x = x_ref - x_ref.dot(z) * z;
   if (x.norm() < 1e-9) x = z.unitOrthogonal();
@@ -1277,7 +1293,8 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   res.seeds_tried = static_cast<int>(seeds.size());
 
   // ---- Choose: complete seeds that keep the burr flush with the wall (no tilt anywhere: a
-  // tilted burr leaves a wedge of flash at the root) if there are any, among them those within
+  // tilted burr cuts the root with its ball, which leaves flash where the fin stands off the
+  // ball's centre plane, or with its upper rim, which leaves a wedge) if there are any, among them those within
   // 10 % of the best minimum manipulability, then the fewest re-orientations, then the largest
   // joint-limit margin, then the first.
   const auto flush = [](const SeedOutcome& o) {

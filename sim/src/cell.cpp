@@ -653,6 +653,11 @@ double shank_radius_for(const ToolDescription& tool, double burr_radius) {
   return std::max(1e-4, std::min(tool.shank_radius, burr_radius - 1e-3));
 }
 
+BurrHolder holder_for(const ToolDescription& tool, double burr_radius) {
+  const bool from_rack = burr_radius < tool.radius;
+  return {shank_radius_for(tool, burr_radius), from_rack ? tool.rack_collet_radius : tool.collet_radius};
+}
+
 std::vector<FixtureBlock> fixture_blocks(const CellSpec& spec, const TriangleMesh& nominal_C) {
   Vec3 lo, hi;
   nominal_C.bounds(lo, hi);

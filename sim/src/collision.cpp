@@ -93,7 +93,7 @@ double cylinder_distance(const Vec3& q, double R, double hl) {
 }  // namespace
 
 CellCollision::CellCollision(const mjModel& m, const MeshBvh& casting_C, const Pose& X_WC,
-                             const MaterialGrid* flash, double shank_radius)
+                             const MaterialGrid* flash, double shank_radius, double collet_radius)
     : casting_C_(casting_C), X_CW_(X_WC.inverse()), flash_(flash) {
   const int link1 = require_id(&m, mjOBJ_BODY, "link1");
   const int link3 = mj_name2id(&m, mjOBJ_BODY, "link3");
@@ -105,6 +105,7 @@ CellCollision::CellCollision(const mjModel& m, const MeshBvh& casting_C, const P
     Vec3 size(m.geom_size[3 * g], m.geom_size[3 * g + 1], m.geom_size[3 * g + 2]);
     std::string name = name_of(m, mjOBJ_GEOM, g);
     if (name == "shank" && shank_radius >= 0) size[0] = shank_radius;
+    if (name == "collet" && collet_radius >= 0) size[0] = collet_radius;
     if (below(m, b, link1)) {
       RobotGeom rg;
       rg.geom = g;

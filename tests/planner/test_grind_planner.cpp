@@ -124,16 +124,32 @@ void expect_single_branch(const RobotModel& robot, const GrindResult& r, double 
   }
 }
 
-// Signed clearance between the cutting cylinder and the wall plane through `root` with normal
-// `n` (0: tangent, < 0: gouge), for a tool pose X_CT.
+// Signed clearance between the ball-ended burr (hemisphere at the tip, cylinder above) and the
+// wall plane through `root` with normal `n` (0: tangent, < 0: gouge), for a tool pose X_CT.
 double wall_clearance(const Pose& X_CT, const Vec3& root, const Vec3& n, double radius,
                       double length) {
   const Vec3 z = X_CT.linear().col(2);
-  const Vec3 tip = X_CT.translation();
-  const Vec3 top = tip - length * z;
+  const Vec3 centre = X_CT.translation() - radius * z;  // the ball end's centre
+  const Vec3 top = X_CT.translation() - length * z;
   const double c = z.dot(n);
-  return std::min((tip - root).dot(n), (top - root).dot(n)) -
-         radius * std::sqrt(std::max(0.0, 1 - c * c));
+  const double ball = (centre - root).dot(n) - radius;
+  const double side = std::min((centre - root).dot(n), (top - root).dot(n)) -
+                      radius * std::sqrt(std::max(0.0, 1 - c * c));
+  return std::min(ball, side);
+}
+
+// How far from the wall plane (along its normal n, through the root point on the fin plane) a
+// ball-ended burr at X_CT begins: the flash it leaves at the root [m] (searched in 1 µm steps).
+double root_gap(const Pose& X_CT, const Vec3& root, const Vec3& n, double radius, double length) {
+  const Vec3 z = X_CT.linear().col(2), tip = X_CT.translation(), centre = tip - radius * z;
+  const auto inside = [&](const Vec3& q) {
+    if ((q - centre).norm() <= radius) return true;
+    const double u = (tip - q).dot(z);  // axial distance from the tip
+    return u >= radius && u <= length && ((q - tip) + u * z).norm() <= radius;
+  };
+  for (double x = 0; x < 2 * radius; x += 1e-6)
+    if (inside(root + x * n)) return x;
+  return 2 * radius;
 }
 
 }  // namespace
@@ -343,7 +359,9 @@ TEST(GrindPlanner, UpperEnvelopeAlongAPathIsTheSmallestWithBoundedSlope) {
       }
       EXPECT_NEAR(e[k], expect, 1e-15) << (closed ? "closed" : "open") << " k=" << k;
       EXPECT_GE(e[k], v[k]);
-      if (k) EXPECT_LE(std::abs(e[k] - e[k - 1]), slope * (at[k] - at[k - 1]) + 1e-15);
+      if (k) {
+        EXPECT_LE(std::abs(e[k] - e[k - 1]), slope * (at[k] - at[k - 1]) + 1e-15);
+      }
     }
   }
 }
@@ -948,13 +966,26 @@ TEST(GrindPlanner, LeadAndTiltGeometry) {
   EXPECT_NEAR(wall_clearance(A, p, n, r, L), 0, 1e-15);
   // The axis crosses the fin plane at p + r·n; the tip is d further along z_T.
   EXPECT_LT((A.translation() - (p + r * n + d * za)).norm(), 1e-15);
-  // Tilt: shank away from the wall; the tip end touches the wall, nothing enters it.
-  for (double tilt : {0.15, -0.15}) {
-    const Pose B = grind_tool_pose(p, n, t, f, t, 0, 0, tilt, 0, r, L, d, &off);
-    const Vec3 zb = B.linear().col(2);
-    EXPECT_NEAR(-zb.dot(n), std::sin(tilt), 1e-15);
+  // Tilt, shank toward the wall: the upper end's rim touches the wall, nothing enters it.
+  {
+    const Pose B = grind_tool_pose(p, n, t, f, t, 0, 0, -0.15, 0, r, L, d, &off);
+    EXPECT_NEAR(-B.linear().col(2).dot(n), std::sin(-0.15), 1e-15);
     EXPECT_NEAR(wall_clearance(B, p, n, r, L), 0, 1e-15);
     EXPECT_GT(off, r);
+  }
+  // Tilt, shank away from the wall: the ball end touches the wall plane (its centre one radius
+  // off it), nothing enters it, and the burr comes within 0.05 mm of the root on the fin plane
+  // at any lean (the ball's centre slides toward the fin plane as the lean grows).
+  for (double tilt : {0.001, 0.05, 0.15, 0.4}) {
+    const Pose B = grind_tool_pose(p, n, t, f, t, 0, 0, tilt, 0, r, L, d, &off);
+    const Vec3 zb = B.linear().col(2), centre = B.translation() - r * zb;
+    EXPECT_NEAR(-zb.dot(n), std::sin(tilt), 1e-15);
+    EXPECT_NEAR((centre - p).dot(n), r, 1e-15);
+    const Vec3 top = B.translation() - L * zb;
+    EXPECT_GE(std::min((centre - p).dot(n), (top - p).dot(n)) - r * std::cos(tilt), -1e-15);
+    const double gap = root_gap(B, p, n, r, L);
+    EXPECT_LE(gap, 0.05e-3 + 1e-6) << "tilt " << tilt;
+    EXPECT_GE(gap, 0);
   }
   // Rotations are proper and the spin turns x_T about z_T.
   const Pose S0 = grind_tool_pose(p, n, t, f, t, 0, 0, 0, 0, r, L, d);

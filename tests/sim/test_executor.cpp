@@ -797,6 +797,52 @@ TEST(Collision, ClearanceAboveTheTableIsTheBurrsHeightAndInsideItIsADepth) {
   EXPECT_TRUE(shank_hit) << "no pose over the top face put the shank into the casting";
 }
 
+// A burr from the tool rack stands in the rack's slim holder: beside a fixture block, where the
+// mounted burr's collet nut (25 mm) stands 2.5 mm into the block, the slim holder (16 mm) keeps
+// 2 mm clear of it.
+TEST(Collision, ARackBurrsSlimHolderKeepsClearWhereTheColletNutWouldNot) {
+  const DefaultCell& cell = default_cell();
+  const CollisionCell& cc = collision_cell();
+  const BurrHolder mounted = holder_for(cc.tool, cc.tool.radius);
+  const double r_rack = cc.tool.radius - 0.001;  // a smaller burr: on a shank 1 mm under its radius
+  const BurrHolder rack = holder_for(cc.tool, r_rack);
+  EXPECT_EQ(mounted.collet_radius, cc.tool.collet_radius);
+  EXPECT_EQ(rack.collet_radius, cc.tool.rack_collet_radius);
+  EXPECT_NEAR(rack.shank_radius, std::min(cc.tool.shank_radius, r_rack - 0.001), 1e-15);
+  const std::vector<FixtureBlock> blocks =
+      cell.spec.fixtures.empty() ? fixture_blocks(cell.spec, cc.nominal) : cell.spec.fixtures;
+  ASSERT_FALSE(blocks.empty());
+  const FixtureBlock& b = blocks.front();
+  // Tool upright, its tip 2 mm over the block's foot, its axis 10 mm beyond the block's end
+  // face: the collet (from burr + shank up) reaches down beside the block's top 3 mm.
+  const double collet_bottom = cc.tool.length + cc.tool.shank_length + 0.002;
+  ASSERT_GT(2 * b.half_size.z(), collet_bottom + 0.002) << "the block is too low for the test";
+  const double axis_off = mounted.collet_radius - 0.0025;
+  const Vec3 tip_W = b.X_WF * Vec3(0, b.half_size.y() + axis_off, -b.half_size.z() + 0.002);
+  const MjDataPtr d = make_data(cell.model.get());
+  const Vector6 q = tool_down_at(cell, tip_W);
+  for (int i = 0; i < kNumJoints; ++i)
+    d->qpos[cell.model->jnt_qposadr[mj_name2id(cell.model.get(), mjOBJ_JOINT,
+                                                ("joint" + std::to_string(i + 1)).c_str())]] = q[i];
+  mj_kinematics(cell.model.get(), d.get());
+  const CellCollision slim(*cell.model, *cc.cad, cell.spec.X_WC, nullptr, rack.shank_radius,
+                           rack.collet_radius);
+  const auto collet_hit = [&](const CellCollision& c) {
+    for (std::size_t k = 0; k < c.robot_geoms(); ++k) {
+      const char* name = mj_id2name(cell.model.get(), mjOBJ_GEOM, c.geom_id(k));
+      if (name && std::string(name) == "collet") return c.check_geom(*d, k);
+    }
+    ADD_FAILURE() << "no collet geom";
+    return CollisionHit{};
+  };
+  const CollisionHit nut = collet_hit(*cc.collision), holder = collet_hit(slim);
+  EXPECT_EQ(nut.obstacle, b.name);
+  EXPECT_NEAR(nut.clearance, -0.0025, 5e-4);
+  EXPECT_EQ(holder.obstacle, b.name);
+  EXPECT_NEAR(holder.clearance, axis_off - rack.collet_radius, 5e-4);
+  EXPECT_GT(holder.clearance, 0.001);
+}
+
 // Flash the planner knows of (perception's detected points) is an obstacle of every robot geom,
 // the burr's too: a transit planned only against the CAD ran its burr through 8 mm fins (cover
 // seed 907, 10 mm deep, 130 mm off its path).

@@ -54,6 +54,11 @@ struct ToolDescription {
   double shank_length = 0.040;   ///< [m] exposed, from the burr's end to the collet
   double collet_radius = 0.0125; ///< [m]
   double collet_length = 0.045;  ///< [m]
+  /// A smaller burr from the cell's tool rack stands in a slim extension holder instead of the
+  /// collet nut (same length): an ER11 mini collet nut, 16 mm in diameter (DIN 6499 ER11, the
+  /// "M" nut), on an extension of that diameter. With the 25 mm nut the collet stood up to 3 mm
+  /// into the housing's walls, 6 mm beside its bolt holes, all round the holes (seeds 601-608).
+  double rack_collet_radius = 0.008;  ///< [m]
 };
 
 /// The robot's own controller: how it counts its axes (what a KRL PTP, RAPID MoveAbsJ or

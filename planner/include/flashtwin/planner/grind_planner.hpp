@@ -121,8 +121,9 @@ struct GrindParams {
   /// Largest extra lead alone (the axis turned within the wall's tangent plane, toward or
   /// against the travel) [rad], tried after the leans within max_extra_tilt and before any
   /// tilt, in the same steps. A lead keeps the burr's side on the wall, so every root point is
-  /// still cut flush as the contact line passes it; a tilt stands the side off the wall and
-  /// leaves a wedge of flash (length/2 · sin tilt). Round a dome the wrist needs more of it
+  /// still cut flush as the contact line passes it; a tilt of the shank away from the wall
+  /// slides the burr up until its ball end cuts at the root (t²/8r of a fin t thick left), one
+  /// toward the wall puts the upper end's rim there. Round a dome the wrist needs more lead
   /// than a tilt could be allowed.
   double max_extra_lead = 0.8;
   int reorient_steps = 4;  ///< extra leans tried: max_extra_tilt·k / reorient_steps, k = 1..
@@ -260,7 +261,10 @@ struct GrindResult {
 GrindResult plan_grind(const RobotModel& robot, const Pose& X_BC, const GrindPath& path,
                        const GrindParams& params = {});
 
-/// Tool pose X_CT of the geometry above (exposed for tests and for other planners).
+/// Tool pose X_CT of the geometry above (exposed for tests and for other planners). The burr is
+/// ball-ended (a hemisphere of `radius` at the tip, as every cell burr is): upright or with a
+/// lead its straight side lies on the wall, the fin `tip_depth` above the tip; leaning away from
+/// the wall (tilt > 0) the ball touches the wall at the root; leaning toward it, the upper end.
 /// `x_ref` is the reference for x_T (projected ⟂ z_T). @pre f, n, t orthonormal.
 Pose grind_tool_pose(const Vec3& p, const Vec3& n, const Vec3& t, const Vec3& f, const Vec3& x_ref,
                      double extra_offset, double lead, double tilt, double spin, double radius,

@@ -88,6 +88,15 @@ struct CastingAssets {
 /// 6 mm), so the shank stays off the wall the burr grinds.
 double shank_radius_for(const ToolDescription& tool, double burr_radius);
 
+/// What holds a burr of `burr_radius`: its shank (shank_radius_for) and the collet's radius,
+/// the mounted collet nut's for the mounted burr, the rack's slim holder's
+/// (ToolDescription::rack_collet_radius) for a smaller one from the tool rack.
+struct BurrHolder {
+  double shank_radius = 0;  ///< [m]
+  double collet_radius = 0; ///< [m]
+};
+BurrHolder holder_for(const ToolDescription& tool, double burr_radius);
+
 /// MJCF text of the whole cell; without assets the casting is a box of the default bounds.
 /// The fixture is spec.fixtures, or when that is empty two blocks 22 mm outside the casting's
 /// bounds along its x axis (fixture_blocks without the mesh test).

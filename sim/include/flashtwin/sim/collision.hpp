@@ -60,8 +60,11 @@ class CellCollision {
   /// @throws InputError when the model has no body `link1`
   /// @param shank_radius ≥ 0: the radius of the tool's `shank` geom instead of the model's (a
   ///        burr from the tool rack on its own shank); < 0: the model's
+  /// @param collet_radius ≥ 0: the radius of the tool's `collet` geom instead of the model's (a
+  ///        rack burr's slim holder, holder_for); < 0: the model's
   CellCollision(const mjModel& m, const MeshBvh& casting_C, const Pose& X_WC,
-                const MaterialGrid* flash = nullptr, double shank_radius = -1);
+                const MaterialGrid* flash = nullptr, double shank_radius = -1,
+                double collet_radius = -1);
 
   /// Flash a planner knows of (perception's detected flash points, {W}) as obstacles of every
   /// robot geom, the burr included (a transit must not run through a fin: 8 mm fins stood in a
