@@ -732,6 +732,14 @@ Vector6 tool_down_at(const DefaultCell& cell, const Vec3& p_W) {
 }
 
 // A point on the table top 0.2 m beside the casting, lifted by h along the table normal.
+// The arm of the cell's model at q (kinematics only).
+void set_arm(const DefaultCell& cell, mjData* d, const Vector6& q) {
+  for (int i = 0; i < kNumJoints; ++i)
+    d->qpos[cell.model->jnt_qposadr[mj_name2id(cell.model.get(), mjOBJ_JOINT,
+                                                ("joint" + std::to_string(i + 1)).c_str())]] = q[i];
+  mj_kinematics(cell.model.get(), d);
+}
+
 Vec3 beside_casting(const DefaultCell& cell, double h) {
   return cell.spec.X_WTable * Vec3(0.0, 0.2, h);
 }
@@ -764,10 +772,7 @@ TEST(Collision, ClearanceAboveTheTableIsTheBurrsHeightAndInsideItIsADepth) {
   ASSERT_GT(collision.robot_geoms(), 6u);
   const MjDataPtr d = make_data(cell.model.get());
   const auto at = [&](const Vector6& q) {
-    for (int i = 0; i < kNumJoints; ++i)
-      d->qpos[cell.model->jnt_qposadr[mj_name2id(cell.model.get(), mjOBJ_JOINT,
-                                                  ("joint" + std::to_string(i + 1)).c_str())]] = q[i];
-    mj_kinematics(cell.model.get(), d.get());
+    set_arm(cell, d.get(), q);
     return collision.check(*d);
   };
   // The ball tip 30 mm above the top: the burr is what comes nearest, 30 mm from the table.
@@ -821,10 +826,7 @@ TEST(Collision, ARackBurrsSlimHolderKeepsClearWhereTheColletNutWouldNot) {
   const Vec3 tip_W = b.X_WF * Vec3(0, b.half_size.y() + axis_off, -b.half_size.z() + 0.002);
   const MjDataPtr d = make_data(cell.model.get());
   const Vector6 q = tool_down_at(cell, tip_W);
-  for (int i = 0; i < kNumJoints; ++i)
-    d->qpos[cell.model->jnt_qposadr[mj_name2id(cell.model.get(), mjOBJ_JOINT,
-                                                ("joint" + std::to_string(i + 1)).c_str())]] = q[i];
-  mj_kinematics(cell.model.get(), d.get());
+  set_arm(cell, d.get(), q);
   const CellCollision slim(*cell.model, *cc.cad, cell.spec.X_WC, nullptr, rack.shank_radius,
                            rack.collet_radius);
   const auto collet_hit = [&](const CellCollision& c) {
@@ -854,10 +856,7 @@ TEST(Collision, DetectedFlashIsAnObstacleOfTheBurrToo) {
   const Vec3 side_W = cell.spec.X_WTable.linear().col(0);
   const MjDataPtr d = make_data(cell.model.get());
   const Vector6 q = tool_down_at(cell, tip_W);
-  for (int i = 0; i < kNumJoints; ++i)
-    d->qpos[cell.model->jnt_qposadr[mj_name2id(cell.model.get(), mjOBJ_JOINT,
-                                                ("joint" + std::to_string(i + 1)).c_str())]] = q[i];
-  mj_kinematics(cell.model.get(), d.get());
+  set_arm(cell, d.get(), q);
   const double r = collision_cell().tool.radius;
   // A point on the burr's axis 10 mm up from its tip lies r deep in it.
   collision.set_known_flash({tip_W + 0.01 * up_W});
