@@ -511,19 +511,6 @@ std::vector<Curve> curves_of(const perception::DetectionResult& det) {
   return out;
 }
 
-// Whether a closed path runs round a hole: its wall normals face its centroid (a round
-// flange's outline faces away).
-bool is_hole(const planner::GrindPath& gp) {
-  if (!gp.closed || gp.points_C.empty() || gp.normals_C.size() != gp.points_C.size()) return false;
-  Vec3 centroid = Vec3::Zero();
-  for (const Vec3& p : gp.points_C) centroid += p;
-  centroid /= static_cast<double>(gp.points_C.size());
-  double inward = 0;
-  for (std::size_t i = 0; i < gp.points_C.size(); ++i)
-    inward += gp.normals_C[i].dot(centroid - gp.points_C[i]) > 0 ? 1 : -1;
-  return inward > 0;
-}
-
 // Whether every piece planned with no sample leaning the burr off the wall (tilt).
 bool upright(const std::vector<planner::GrindResult>& pieces) {
   for (const auto& g : pieces) {
@@ -553,7 +540,7 @@ std::vector<planner::GrindResult> plan_path(
     // wrist whirls and the spline through those samples swung the burr 75 mm out of a housing's
     // bolt hole and into it again, seed 602.)
     const bool too_large = pieces.front().status == planner::GrindStatus::kToolTooLarge;
-    if (too_large || (is_hole(gp) && !upright(pieces))) {
+    if (too_large || (pieces.front().hole_radius > 0 && !upright(pieces))) {
       std::vector<double> rack = sc.tool_rack;
       std::sort(rack.rbegin(), rack.rend());
       for (const double r : rack) {

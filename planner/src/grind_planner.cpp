@@ -1017,6 +1017,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     }
     if (hole_r < radius + kClearance) {
       GrindResult res;
+      res.hole_radius = hole_r;
       res.status = GrindStatus::kToolTooLarge;
       res.message = strf("hole of radius %.2f mm (%s) is too narrow for the burr of radius "
                          "%.2f mm (+%.1f mm room to step in): needs a smaller burr",
@@ -1133,6 +1134,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   // ---- Passes: roughing passes of equal radial depths, then the finishing pass against the
   // wall. In a hole the burr's axis need not go past the hole's centre (offset hole_r − r).
   GrindResult res;
+  res.hole_radius = hole_r < 1e299 ? hole_r : 0.0;
   res.tool_radius = radius;
   res.pass_offsets = pass_offsets(P, std::min(path.fin_height, std::max(0.0, hole_r - radius)));
   res.passes = static_cast<int>(res.pass_offsets.size());

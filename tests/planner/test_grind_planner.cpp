@@ -661,7 +661,12 @@ TEST(GrindPlanner, HoleNarrowerThanTheBurrIsRefused) {
   wide.closed = false;
   wide.points_C.resize(21);
   wide.normals_C.resize(21);
-  EXPECT_TRUE(plan_grind(robot, X_BC, wide).ok());
+  const GrindResult w = plan_grind(robot, X_BC, wide);
+  EXPECT_TRUE(w.ok()) << w.message;
+  // The hole's radius is reported (the caller's rack choice reads it); a straight wall: none.
+  EXPECT_NEAR(closed.hole_radius, r + 1e-4, 1e-5);
+  EXPECT_NEAR(w.hole_radius, r + 1e-3, 1e-5);
+  EXPECT_EQ(plan_grind(robot, X_BC, wall_line(-0.05, 0.05, 0.005), flush()).hole_radius, 0.0);
 }
 
 TEST(GrindPlanner, LeadInAndOutKeepTheBurrOffTheWallWhileItPlungesAndLifts) {
@@ -981,11 +986,8 @@ TEST(GrindPlanner, LeadAndTiltGeometry) {
     const Vec3 zb = B.linear().col(2), centre = B.translation() - r * zb;
     EXPECT_NEAR(-zb.dot(n), std::sin(tilt), 1e-15);
     EXPECT_NEAR((centre - p).dot(n), r, 1e-15);
-    const Vec3 top = B.translation() - L * zb;
-    EXPECT_GE(std::min((centre - p).dot(n), (top - p).dot(n)) - r * std::cos(tilt), -1e-15);
-    const double gap = root_gap(B, p, n, r, L);
-    EXPECT_LE(gap, 0.05e-3 + 1e-6) << "tilt " << tilt;
-    EXPECT_GE(gap, 0);
+    EXPECT_GE(wall_clearance(B, p, n, r, L), -1e-15) << "tilt " << tilt;
+    EXPECT_LE(root_gap(B, p, n, r, L), 0.05e-3 + 1e-6) << "tilt " << tilt;
   }
   // Rotations are proper and the spin turns x_T about z_T.
   const Pose S0 = grind_tool_pose(p, n, t, f, t, 0, 0, 0, 0, r, L, d);

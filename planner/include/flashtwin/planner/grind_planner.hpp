@@ -226,6 +226,9 @@ struct GrindResult {
   int seeds_tried = 0, seeds_completed = 0;  ///< (branch, spin) seeds tracked / that completed
 
   double tool_radius = 0;  ///< [m] the burr this plan is for (the robot's tool when planned)
+  /// [m] radius of the hole the path runs round (closed, wall facing its centre, or an open arc
+  /// of at least 45° of one); 0: not in a hole.
+  double hole_radius = 0;
   int passes = 0;
   std::vector<double> pass_offsets;  ///< extra axis offset e of each pass [m], the last one
                                      ///< GrindParams::stock_allowance
