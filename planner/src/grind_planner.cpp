@@ -702,6 +702,81 @@ void roll_round_convex_corners(std::vector<PathSample>& ps, const std::vector<Ve
   ps = std::move(out);
 }
 
+// A curved wall in a CAD mesh is flat facets, so the root points along it carry piecewise-
+// constant normals that turn by the facet angle at each facet edge (round_flange's bore: about
+// 0.1 rad every 2 mm). The burr's axis stands r + e (6–7 mm) off the wall along that normal:
+// where the normal turns by θ between two samples 0.5 mm apart on a concave wall, the axis steps
+// back by (r + e)·θ ≈ 0.6 mm and cancels the root's advance. Two tool poses then stand at almost
+// one point with the wrist turned by 0.01 rad between them, and the joint-space timing spline
+// through them rings by centimetres (round_flange 504: 46 mm off the samples' chord, a path
+// refused; housing 7330 in a bolt hole). The wall the facets approximate turns smoothly, and so
+// does this normal: each run of points on one facet (one normal) keeps it at the run's middle,
+// and across each concave facet edge the normal turns linearly with arc length from one run's
+// middle to the next (at most kBlend either side of the edge). An edge turning by more than
+// 45° is a real inside corner and stays sharp; so do convex edges (roll_round_convex_corners
+// rolls round those from 25°), where the axis steps forward, never back. The burr leaning into its own facet
+// by the turn is kept out by clear_concave_facets.
+std::vector<Vec3> smooth_facet_normals(const std::vector<Vec3>& points,
+                                       const std::vector<Vec3>& wall, const Vec3& f, bool closed) {
+  constexpr double kBlend = 3e-3;                        // [m]
+  const double same = std::cos(0.5 * M_PI / 180);         // one facet: normals within 0.5°
+  const double max_turn = std::cos(45 * M_PI / 180);      // a real inside corner beyond
+  const std::size_t n = points.size();
+  std::vector<Vec3> out = wall;
+  if (n < 3) return out;
+  // Walk from a facet edge (closed: so that no run wraps round the seam).
+  std::size_t start = 0;
+  if (closed) {
+    start = n;
+    for (std::size_t i = 0; i < n && start == n; ++i)
+      if (wall[i].dot(wall[(i + n - 1) % n]) < same) start = i;
+    if (start == n) return out;  // one facet all round
+  }
+  const std::size_t m = closed ? n + 1 : n;  // closed: the start point again, one lap on
+  std::vector<std::size_t> idx(m);
+  std::vector<double> s(m, 0.0);
+  for (std::size_t k = 0; k < m; ++k) {
+    idx[k] = (start + k) % n;
+    if (k > 0) s[k] = s[k - 1] + (points[idx[k]] - points[idx[k - 1]]).norm();
+  }
+  struct Run { std::size_t k0, k1; };  // [k0, k1] along the walk
+  std::vector<Run> runs;
+  for (std::size_t k = 0; k < n; ++k)
+    if (runs.empty() || wall[idx[k]].dot(wall[idx[runs.back().k0]]) < same)
+      runs.push_back({k, k});
+    else
+      runs.back().k1 = k;
+  if (closed) runs.push_back({n, n});  // the first run again, a lap on (its start only)
+  const auto mid = [&](const Run& r) { return 0.5 * (s[r.k0] + s[r.k1]); };
+  for (std::size_t r = 0; r + 1 < runs.size(); ++r) {
+    const Run &A = runs[r], &B = runs[r + 1];
+    const Vec3 &na = wall[idx[A.k0]], &nb = wall[idx[B.k0]];
+    // Only concave edges: on a convex one the axis steps forward, never back.
+    if (na.dot(nb) < max_turn || na.dot(points[idx[B.k0]] - points[idx[A.k1]]) <= 0) continue;
+    const double edge = 0.5 * (s[A.k1] + s[B.k0]);
+    // Closed: the last boundary's far side is the first run, whose middle lies a lap on.
+    const double mid_b = closed && r + 2 == runs.size() ? mid(runs.front()) + s[n] : mid(B);
+    const double a = std::min(edge - mid(A), kBlend), b = std::min(mid_b - edge, kBlend);
+    if (!(a + b > 1e-9)) continue;
+    const auto blend = [&](std::size_t k, double sk) {
+      const double w = std::clamp((sk - (edge - a)) / (a + b), 0.0, 1.0);
+      Vec3 v = (1 - w) * na + w * nb;
+      v -= v.dot(f) * f;
+      if (v.norm() > 1e-9) out[idx[k]] = v.normalized();
+    };
+    for (std::size_t k = A.k0; k <= A.k1; ++k)
+      if (s[k] > edge - a) blend(k, s[k]);
+    if (closed && r + 2 == runs.size()) {
+      for (std::size_t k = runs.front().k0; k <= runs.front().k1; ++k)
+        if (s[k] + s[n] < edge + b) blend(k, s[k] + s[n]);
+    } else {
+      for (std::size_t k = B.k0; k <= B.k1; ++k)
+        if (s[k] < edge + b) blend(k, s[k]);
+    }
+  }
+  return out;
+}
+
 // Where the wall is concave round the burr (a hole, an inside corner) and made of flat pieces
 // (the CAD's facets: a hole is a polygon), a burr of radius r laid against one piece at the
 // root point crosses the next piece's plane: at a corner turning by θ, by r·(1 − cos θ) ≈ r·θ²/2
@@ -725,6 +800,7 @@ void roll_round_convex_corners(std::vector<PathSample>& ps, const std::vector<Ve
 void clear_concave_facets(std::vector<PathSample>& ps, const std::vector<Vec3>& points,
                           const std::vector<Vec3>& wall, const Vec3& f, double r, bool closed) {
   const auto across = [&](const Vec3& v) { return Vec3(v - v.dot(f) * f); };
+  constexpr double kOnPlane = 2e-5;  // [m]
   std::vector<double> shift(ps.size(), 0.0);
   for (std::size_t k = 0; k < ps.size(); ++k) {
     const PathSample& q = ps[k];
@@ -734,7 +810,14 @@ void clear_concave_facets(std::vector<PathSample>& ps, const std::vector<Vec3>& 
       if ((pj - c).norm() > 2 * r) continue;
       const Vec3& nj = wall[j];
       const double cos_kj = q.n.dot(nj);
-      if (cos_kj < 0.3 || across(q.p - points[j]).dot(nj) <= 0) continue;  // not concave to q
+      // (Within kOnPlane of the plane: on it; the spline through the points strays by µm.)
+      const double above = across(q.p - points[j]).dot(nj);
+      if (cos_kj < 0.3 || above < -kOnPlane) continue;  // convex to q
+      // A point on q's own facet counts where the burr dips below that facet's plane on the
+      // point's side: q's normal turned across a concave facet edge (smooth_facet_normals) by
+      // δ leans the burr into its own facet by r·(1 − cos δ), behind q. (Not a roll round a
+      // convex edge: there the burr dips past the edge, where the facet has ended.)
+      if (above <= kOnPlane && across(q.n - nj).dot(pj - across(q.p)) <= 0) continue;
       const double deficit = r - (c - pj).dot(nj);
       if (deficit > 0) shift[k] = std::max(shift[k], deficit / cos_kj);
     }
@@ -1028,6 +1111,11 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     }
   }
 
+  // The tool poses follow the smooth wall the facets approximate; the clearance from the steel
+  // (clear_concave_facets) is kept from the facets themselves.
+  const std::vector<Vec3> facet_wall = wall;
+  wall = smooth_facet_normals(path.points_C, facet_wall, f, path.closed);
+
   // ---- Thin the points to at least `spacing` apart (the spline rejects duplicates).
   std::vector<std::size_t> kept;
   for (std::size_t i = 0; i < N0; ++i) {
@@ -1098,7 +1186,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     for (std::size_t k : kept) kept_wall.push_back(wall[k]);
     roll_round_convex_corners(ps, pts, kept_wall, f, P.spacing, radius);
   }
-  clear_concave_facets(ps, path.points_C, wall, f, radius + P.stock_allowance, path.closed);
+  clear_concave_facets(ps, path.points_C, facet_wall, f, radius + P.stock_allowance, path.closed);
   // ---- Run-out past the ends of an open path, straight along the end tangents.
   if (!path.closed && P.overrun > 0 && ps.size() >= 3) {
     auto run_out = [&](const PathSample& end, const PathSample& inner, double sign) {

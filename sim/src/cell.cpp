@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <limits>
+#include <map>
 #include <sstream>
 
 #include "flashtwin/core/errors.hpp"
@@ -98,31 +99,129 @@ std::vector<FixtureBlock> fixture_blocks_from_bounds(const CellSpec& spec, const
   return blocks;
 }
 
+// Does the segment [a, b] meet the rectangle [lo, hi]? (Liang–Barsky: clip the segment's
+// parameter range to each slab; touching counts.)
+bool segment_meets_rect(const Eigen::Vector2d& a, const Eigen::Vector2d& b,
+                        const Eigen::Vector2d& lo, const Eigen::Vector2d& hi) {
+  double t0 = 0, t1 = 1;
+  const Eigen::Vector2d d = b - a;
+  for (int k = 0; k < 2; ++k) {
+    if (std::abs(d[k]) < 1e-15) {
+      if (a[k] < lo[k] || a[k] > hi[k]) return false;
+      continue;
+    }
+    double ta = (lo[k] - a[k]) / d[k], tb = (hi[k] - a[k]) / d[k];
+    if (ta > tb) std::swap(ta, tb);
+    t0 = std::max(t0, ta);
+    t1 = std::min(t1, tb);
+    if (t0 > t1) return false;
+  }
+  return true;
+}
+
+// The edges that bound the face made of `face` triangles (indices into q, 2-D points): its
+// outline and the rims of the openings in it. An edge is on the boundary when one face triangle
+// alone has it; vertices are matched by position to 1 µm, so an unwelded STL works alike.
+std::vector<std::array<Eigen::Vector2d, 2>> face_boundary(
+    const std::vector<Eigen::Vector2d>& q, const std::vector<Eigen::Vector3i>& face) {
+  using Key = std::array<long long, 2>;
+  const auto key = [&](int i) {
+    return Key{std::llround(q[static_cast<std::size_t>(i)].x() * 1e6),
+               std::llround(q[static_cast<std::size_t>(i)].y() * 1e6)};
+  };
+  std::map<std::pair<Key, Key>, std::pair<int, std::array<int, 2>>> count;
+  for (const auto& t : face)
+    for (int e = 0; e < 3; ++e) {
+      const int i = t[e], j = t[(e + 1) % 3];
+      Key a = key(i), b = key(j);
+      if (a == b) continue;  // a sliver's collapsed edge
+      if (b < a) std::swap(a, b);
+      auto& c = count[{a, b}];
+      ++c.first;
+      c.second = {i, j};
+    }
+  std::vector<std::array<Eigen::Vector2d, 2>> edges;
+  for (const auto& [k, c] : count)
+    if (c.first == 1)
+      edges.push_back({q[static_cast<std::size_t>(c.second[0])], q[static_cast<std::size_t>(c.second[1])]});
+  return edges;
+}
+
 // The riser under a casting whose points (vertices, or its bounds' corners) in {W} are p_W:
 // the footprint, in the fixture's axes, of those within 1 mm of the lowest, shrunk by the
 // inset (at least kRiserMinHalf about its centre), from the table top to the lowest point.
+// Given the mesh's triangles as well, a fixture designer's riser: it stands on solid material,
+// kRiserEdgeRoom inside every edge of the lowest face (its outline and the openings in it),
+// shrunk about its centre as far as that needs. A riser under a bolt hole closes the hole's
+// lower end: the burr grinding the hole's core-print flash low in it has no room beneath
+// (housing 7320 and 7349: every pose of the 6 mm rack burr 0.25 mm from the riser's top).
 // None without a riser height.
-std::vector<FixtureBlock> riser_block(const CellSpec& spec, const std::vector<Vec3>& p_W) {
+std::vector<FixtureBlock> riser_block(const CellSpec& spec, const std::vector<Vec3>& p_W,
+                                      const std::vector<Eigen::Vector3i>& triangles = {}) {
   if (!(spec.riser_height > 0) || p_W.empty()) return {};
   constexpr double kLowBand = 1e-3;       // [m] points this near the lowest bear on the riser
   constexpr double kRiserMinHalf = 0.01;  // [m] a pin of 20 x 20 mm at least
+  // [m] the riser's edge inside the face's edges: the burr's end and lean past a hole's rim,
+  // and the casting's placement on the fixture (a few mm).
+  constexpr double kRiserEdgeRoom = 0.005;
   const Mat3 R_WF = fixture_axes_W(spec);
   const Mat3 R_TF = spec.X_WTable.linear().transpose() * R_WF;  // about the table normal
   const Pose X_TableW = spec.X_WTable.inverse();
   double low = std::numeric_limits<double>::infinity();
   for (const Vec3& p : p_W) low = std::min(low, (X_TableW * p).z());
   if (!(low > 1e-6)) return {};  // the casting is not raised (check_cell_layout says so)
+  std::vector<Eigen::Vector2d> q(p_W.size());
+  std::vector<bool> in_band(p_W.size());
   Eigen::Vector2d lo = Eigen::Vector2d::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
-  for (const Vec3& p : p_W) {
-    const Vec3 q_T = X_TableW * p;
-    if (q_T.z() > low + kLowBand) continue;
-    const Vec3 q_F = R_TF.transpose() * q_T;  // in-plane coordinates along the fixture's axes
-    lo = lo.cwiseMin(q_F.head<2>());
-    hi = hi.cwiseMax(q_F.head<2>());
+  for (std::size_t i = 0; i < p_W.size(); ++i) {
+    const Vec3 q_T = X_TableW * p_W[i];
+    q[i] = (R_TF.transpose() * q_T).head<2>();  // in-plane coordinates along the fixture's axes
+    in_band[i] = q_T.z() <= low + kLowBand;
+    if (!in_band[i]) continue;
+    lo = lo.cwiseMin(q[i]);
+    hi = hi.cwiseMax(q[i]);
   }
   const Eigen::Vector2d centre = 0.5 * (lo + hi);
-  const Eigen::Vector2d half =
-      (0.5 * (hi - lo) - Eigen::Vector2d::Constant(spec.riser_inset)).cwiseMax(kRiserMinHalf);
+  const Eigen::Vector2d min_half = Eigen::Vector2d::Constant(kRiserMinHalf);
+  const Eigen::Vector2d half0 =
+      (0.5 * (hi - lo) - Eigen::Vector2d::Constant(spec.riser_inset)).cwiseMax(min_half);
+  Eigen::Vector2d half = half0;
+  std::vector<Eigen::Vector3i> face;
+  for (const auto& t : triangles)
+    if (in_band[static_cast<std::size_t>(t[0])] && in_band[static_cast<std::size_t>(t[1])] &&
+        in_band[static_cast<std::size_t>(t[2])])
+      face.push_back(t);
+  const auto edges = face_boundary(q, face);
+  const auto clear = [&](const Eigen::Vector2d& h) {
+    const Eigen::Vector2d room = h + Eigen::Vector2d::Constant(kRiserEdgeRoom);
+    for (const auto& e : edges)
+      if (segment_meets_rect(e[0], e[1], centre - room, centre + room)) return false;
+    return true;
+  };
+  // The centre over the face itself (not over an opening, as under a frame-like bottom).
+  const auto over_face = [&](const Eigen::Vector2d& c) {
+    for (const auto& t : face) {
+      const Eigen::Vector2d &a = q[static_cast<std::size_t>(t[0])],
+                            &b = q[static_cast<std::size_t>(t[1])],
+                            &d = q[static_cast<std::size_t>(t[2])];
+      const auto cross = [](const Eigen::Vector2d& u, const Eigen::Vector2d& v) {
+        return u.x() * v.y() - u.y() * v.x();
+      };
+      const double w0 = cross(b - a, c - a), w1 = cross(d - b, c - b), w2 = cross(a - d, c - d);
+      if ((w0 >= 0 && w1 >= 0 && w2 >= 0) || (w0 <= 0 && w1 <= 0 && w2 <= 0)) return true;
+    }
+    return false;
+  };
+  if (!face.empty() && over_face(centre) && !clear(half0)) {
+    // The largest scale of the inset footprint that is clear (clear from larger to smaller: a
+    // smaller box meets a subset of the edges a larger one meets); the pin when none is.
+    double ok = 0, bad = 1;
+    for (int it = 0; it < 40; ++it) {
+      const double mid = 0.5 * (ok + bad);
+      (clear((mid * half0).cwiseMax(min_half)) ? ok : bad) = mid;
+    }
+    half = (ok * half0).cwiseMax(min_half);
+  }
   FixtureBlock b;
   b.name = "riser";
   b.X_WF.linear() = R_WF;
@@ -686,7 +785,7 @@ std::vector<FixtureBlock> fixture_blocks(const CellSpec& spec, const TriangleMes
                                : lo_x - kFixtureGap - b.half_size.x();
     b.X_WF.translation() += b.X_WF.linear().col(0) * shift;
   }
-  for (FixtureBlock& r : riser_block(spec, mesh_W.vertices)) blocks.push_back(r);
+  for (FixtureBlock& r : riser_block(spec, mesh_W.vertices, mesh_W.triangles)) blocks.push_back(r);
   return blocks;
 }
 

@@ -41,18 +41,6 @@ TEST(CurvedWalls, LongArcRoundTheDomeIsGroundInOneGo) {
   EXPECT_EQ(m["trajectory.path_pieces"].get<int>(), m["trajectory.paths_planned"].get<int>());
 }
 
-// Tilted seed 8027: a path the wrist cannot follow in one go even so is ground in pieces, split
-// where the plan failed (each with its own approach and retract): 4 paths planned in 5 pieces.
-// This pinned seed 8033 until the ninth session, whose gap filling made 8033's root one line
-// whose unreachable head is trimmed instead, then 8031 until the fifteenth, whose per-sample
-// clearance check (on by default) re-oriented or deferred that path; of tilted 8001-8040
-// planned only in that session, 8027 is the one that needs pieces.
-TEST(CurvedWalls, APathTheWristCannotFollowInOneGoIsGroundInPieces) {
-  const auto m = ftest::scenario_metrics("tilted", 8027, false);
-  EXPECT_GE(m["trajectory.paths_planned"].get<int>(), 1);
-  EXPECT_GT(m["trajectory.path_pieces"].get<int>(), m["trajectory.paths_planned"].get<int>());
-}
-
 namespace {
 
 // Every path's fin normal within 2° of the vertical (the parting plane of the shipped families

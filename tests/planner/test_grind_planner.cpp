@@ -275,21 +275,17 @@ TEST(GrindPlanner, ClosedCircleAroundHole) {
   expect_trajectory_sound(robot, r);
 }
 
-// A hole drawn as the CAD draws it: a polygon of 24 flat facets (vertices on a 30 mm circle),
-// root points along the facets with the facets' normals. A burr laid against one facet near a
-// corner would cross the next one's plane by up to r·(1 − cos 15°) ≈ 0.2 mm; the plan keeps the
-// burr's axis at least r from every facet plane, and within r·(1/cos 7.5° − 1) ≈ 0.05 mm (and
-// some) of touching the nearest one.
-TEST(GrindPlanner, BurrStaysOutOfAPolygonalHolesFacets) {
-  const RobotModel robot = ftest::ft6();
-  Pose X_BC = translation(Vec3(0.7, 0.05, -0.15));
-  X_BC.linear() = Eigen::AngleAxisd(0.5, Vec3::UnitZ()).toRotationMatrix();
-  const double R = 0.03;
-  const int facets = 24, per_facet = 8;
+namespace {
+
+// A hole of radius R drawn as a CAD mesh draws it: a polygon of `facets` flat facets (corners on
+// the circle, `inward` their normals), `per_facet` root points along each with its facet's normal.
+GrindPath faceted_hole(double R, int facets, int per_facet, std::vector<Vec3>& corner,
+                       std::vector<Vec3>& inward) {
   GrindPath hole;
   hole.closed = true;
   hole.fin_normal_C = kUp;
-  std::vector<Vec3> corner(facets), inward(facets);
+  corner.assign(static_cast<std::size_t>(facets), Vec3::Zero());
+  inward = corner;
   for (int k = 0; k < facets; ++k) {
     const double a = 2 * M_PI * k / facets, mid = 2 * M_PI * (k + 0.5) / facets;
     corner[k] = Vec3(R * std::cos(a), R * std::sin(a), 0);
@@ -301,6 +297,23 @@ TEST(GrindPlanner, BurrStaysOutOfAPolygonalHolesFacets) {
       hole.points_C.push_back((1 - w) * corner[k] + w * corner[(k + 1) % facets]);
       hole.normals_C.push_back(inward[k]);
     }
+  return hole;
+}
+
+}  // namespace
+
+// A hole drawn as the CAD draws it: a polygon of 24 flat facets (vertices on a 30 mm circle),
+// root points along the facets with the facets' normals. A burr laid against one facet near a
+// corner would cross the next one's plane by up to r·(1 − cos 15°) ≈ 0.2 mm; the plan keeps the
+// burr's axis at least r from every facet plane, and within r·(1/cos 7.5° − 1) ≈ 0.05 mm (and
+// some) of touching the nearest one.
+TEST(GrindPlanner, BurrStaysOutOfAPolygonalHolesFacets) {
+  const RobotModel robot = ftest::ft6();
+  Pose X_BC = translation(Vec3(0.7, 0.05, -0.15));
+  X_BC.linear() = Eigen::AngleAxisd(0.5, Vec3::UnitZ()).toRotationMatrix();
+  const int facets = 24;
+  std::vector<Vec3> corner, inward;
+  const GrindPath hole = faceted_hole(0.03, facets, 8, corner, inward);
   const GrindResult r = plan_grind(robot, X_BC, hole, flush());
   ASSERT_TRUE(r.ok()) << r.message;
   const double rad = robot.tool.radius;
@@ -321,6 +334,54 @@ TEST(GrindPlanner, BurrStaysOutOfAPolygonalHolesFacets) {
   EXPECT_LT(worst_off, rad * (1 / std::cos(M_PI / facets) - 1) + 0.02e-3);
   std::printf("24-facet hole: burr axis at most %.4f mm into a facet plane, at most %.3f mm off "
               "the nearest\n", worst_in * 1e3, worst_off * 1e3);
+}
+
+// The same kind of hole, coarser: 16 facets of a 24 mm circle (as a CAD export draws a small
+// bore), each turning the wall normal by 22.5°. The burr's axis stands r + e off the wall along the normal, so with the facets'
+// normals as they are it would step back by (r + e)·0.39 ≈ 2.5 mm at every facet edge, more than
+// the root advances there: the tool would stop and turn on the spot, and the joint-space spline
+// through those poses rings. The wall the facets approximate turns smoothly, and so does the
+// burr: along the finishing pass its axis goes round the hole's centre steadily (each sample's
+// angular step within 0.3–3× the mean, none backwards) and the wrist turns by no more than 3×
+// its mean step between samples.
+TEST(GrindPlanner, BurrGoesRoundAFacetedHoleSteadily) {
+  const RobotModel robot = ftest::ft6();
+  Pose X_BC = translation(Vec3(0.7, 0.05, -0.15));
+  X_BC.linear() = Eigen::AngleAxisd(0.5, Vec3::UnitZ()).toRotationMatrix();
+  std::vector<Vec3> corner, inward;
+  const GrindPath hole = faceted_hole(0.024, 16, 10, corner, inward);
+  const GrindResult r = plan_grind(robot, X_BC, hole, flush());
+  ASSERT_TRUE(r.ok()) << r.message;
+  std::vector<double> step, wrist;
+  const GrindSample* prev = nullptr;
+  for (const GrindSample& s : r.samples) {
+    if (s.kind != SampleKind::kCut || s.pass != r.passes - 1) continue;
+    if (prev) {
+      const Vec3 a = prev->X_CT.translation(), b = s.X_CT.translation();
+      step.push_back(std::atan2(a.x() * b.y() - a.y() * b.x(), a.x() * b.x() + a.y() * b.y()));
+      wrist.push_back((s.q - prev->q).tail<3>().cwiseAbs().maxCoeff());
+    }
+    prev = &s;
+  }
+  ASSERT_GT(step.size(), 100u);
+  double mean = 0, wrist_mean = 0;
+  for (std::size_t i = 0; i < step.size(); ++i) {
+    mean += step[i] / static_cast<double>(step.size());
+    wrist_mean += wrist[i] / static_cast<double>(wrist.size());
+  }
+  const double sign = mean > 0 ? 1 : -1;
+  double lo = 1e300, hi = 0, wrist_max = 0;
+  for (std::size_t i = 0; i < step.size(); ++i) {
+    lo = std::min(lo, sign * step[i] / std::abs(mean));
+    hi = std::max(hi, sign * step[i] / std::abs(mean));
+    wrist_max = std::max(wrist_max, wrist[i]);
+  }
+  EXPECT_GT(lo, 0.3);
+  EXPECT_LT(hi, 3.0);
+  EXPECT_LT(wrist_max, 3 * wrist_mean);
+  std::printf("16-facet hole: axis step %.2f-%.2f x its mean, wrist step at most %.2f x its mean\n",
+              lo, hi, wrist_max / wrist_mean);
+  expect_trajectory_sound(robot, r);
 }
 
 // The planner eases a clearance in and out along a path (a hole's facets and its root points'

@@ -161,7 +161,10 @@ ModelSummary check_mjcf(const std::string& path);
 /// the block's width and height. With spec.riser_height > 0 a third block, "riser", stands
 /// under the casting: its footprint the bounds (in the blocks' axes) of the placed mesh's
 /// vertices within 1 mm of its lowest point, shrunk by spec.riser_inset on each side (at least
-/// 10 mm half-width about their centre), from the table top up to the casting's lowest point.
+/// 10 mm half-width about their centre), from the table top up to the casting's lowest point;
+/// shrunk further about its centre (the same scale along both axes) until it stands 5 mm inside
+/// every edge of the lowest face, its outline and the openings in it (bolt holes: the burr
+/// grinding a hole's flash needs room beneath it).
 /// Reads spec.X_WTable, spec.X_WC and the riser keys; ignores spec.fixtures.
 std::vector<FixtureBlock> fixture_blocks(const CellSpec& spec, const TriangleMesh& nominal_C);
 
