@@ -158,46 +158,91 @@ JobMotions plan_job_motions(const Scenario& sc, const ScenarioScan& ss, const Po
   out.min_clearance = sim::CellCollision::kReach;
   if (plans.empty()) return out;
   // The planner's world: the cell's obstacles, the CAD where the plan put the casting and the
-  // flash perception found there. (Transits are with the mounted burr: a rack burr's own shank is thinner.)
-  PlanningWorld world(sc, ss.setup, cad_C, X_WC_plan, sc.robot.tool.radius, flash_C);
-  const planner::ClearanceFn clearance = world.clearance();
+  // flash perception found there; one per burr, each in its own holder (the rack's in the slim
+  // one). A transit carries the burr in the spindle: the tool is changed at home, so a path
+  // ground with another burr than the one before it is reached over home (the way there with
+  // the old burr, the way on with the new one). Checked with the mounted burr's holder at the
+  // start of a rack path in a bolt hole, the transit's end put the 25 mm collet nut 0.7 mm into
+  // the wall the slim holder clears, and the path was left alone (housing 7341).
+  std::map<double, std::unique_ptr<PlanningWorld>> worlds;
+  std::map<double, planner::ClearanceFn> clearances;
+  const auto clearance_for = [&](double burr_radius) -> const planner::ClearanceFn& {
+    auto& fn = clearances[burr_radius];
+    if (!fn) {
+      auto& w = worlds[burr_radius];
+      w = std::make_unique<PlanningWorld>(sc, ss.setup, cad_C, X_WC_plan, burr_radius, flash_C);
+      fn = w->clearance();
+    }
+    return fn;
+  };
+  const double mounted = sc.robot.tool.radius;
+  const auto burr_of = [&](const PlannedPath& plan) {
+    return plan.second.tool_radius > 0 ? plan.second.tool_radius : mounted;
+  };
   planner::TransitParams tp;
   tp.clearance = sc.execution.transit_clearance;
   tp.speed_ratio = sc.execution.transit_speed;
   tp.up_B = ss.setup.spec.X_WB.linear().transpose() * Vec3::UnitZ();
   tp.via = {sc.robot.home};
-  const auto add_transit = [&](const Vector6& from, const Vector6& to, std::size_t path) {
-    const planner::TransitResult tr = planner::plan_transit(sc.robot, from, to, clearance, tp);
+  struct Move {
+    Motion motion;
+    bool lifted = false;
+    double clearance = 0;  // [m]
+  };
+  // The transit from `from` to `to` with the burr of radius `burr`, appended to `into`; why not.
+  const auto add_transit = [&](const Vector6& from, const Vector6& to, std::size_t path, double burr,
+                               std::vector<Move>& into) {
+    const planner::TransitResult tr = planner::plan_transit(sc.robot, from, to, clearance_for(burr), tp);
     if (!tr.ok) return std::optional<std::string>(tr.message);
     spdlog::debug("transit to path {}: {}, {:.1f} s, clearance {:.1f} mm, {} checks", path,
                   tr.message, tr.duration(), tr.min_clearance * 1e3, tr.checks);
-    out.motions.push_back(transit_motion(tr, path));
-    ++out.transits;
-    out.lifted += tr.lifted;
-    out.transit_time += tr.duration();
-    out.min_clearance = std::min(out.min_clearance, tr.min_clearance);
+    Move mv{transit_motion(tr, path), tr.lifted, tr.min_clearance};
+    mv.motion.tool_radius = burr == mounted ? 0.0 : burr;
+    into.push_back(std::move(mv));
     return std::optional<std::string>();
   };
+  // The transits kept in the job.
+  const auto keep = [&](std::vector<Move>& moves) {
+    for (Move& mv : moves) {
+      ++out.transits;
+      out.lifted += mv.lifted;
+      out.transit_time += duration_of(mv.motion);
+      out.min_clearance = std::min(out.min_clearance, mv.clearance);
+      out.motions.push_back(std::move(mv.motion));
+    }
+  };
   Vector6 q_at = sc.robot.home;
+  double burr_at = mounted;  // the burr in the spindle
   std::size_t last_path = plans.front().first;
   for (const PlannedPath& plan : plans) {
     Motion grind = motion_of(plan);
-    if (const auto why = add_transit(q_at, grind.trajectory.q.front(), plan.first)) {
+    const double burr = burr_of(plan);
+    // Home first to change the burr (unless the arm is there), then on to the path.
+    std::vector<Move> moves;
+    std::optional<std::string> why;
+    const bool change = burr != burr_at && (q_at - sc.robot.home).norm() > 1e-9;
+    if (change) why = add_transit(q_at, sc.robot.home, last_path, burr_at, moves);
+    if (!why) why = add_transit(change ? sc.robot.home : q_at, grind.trajectory.q.front(), plan.first, burr, moves);
+    if (why) {
       spdlog::warn("path {}: left alone: {}", plan.first, *why);
       out.refused_paths.push_back(plan.first);
       if (out.first_refusal.empty()) out.first_refusal = "path " + std::to_string(plan.first) + ": " + *why;
       continue;
     }
+    keep(moves);
     q_at = grind.trajectory.q.back();
+    burr_at = burr;
     last_path = plan.first;
     out.motions.push_back(std::move(grind));
   }
   if (!out.motions.empty()) {
-    if (const auto why = add_transit(q_at, sc.robot.home, last_path)) {
+    std::vector<Move> moves;
+    if (const auto why = add_transit(q_at, sc.robot.home, last_path, burr_at, moves)) {
       spdlog::warn("the way home from path {}: {}", last_path, *why);
       out.home_refused = true;
       if (out.first_refusal.empty()) out.first_refusal = "the way home: " + *why;
     }
+    keep(moves);
   }
   return out;
 }
