@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <map>
 #include <optional>
+#include <utility>
 
 #include "flashtwin/core/format.hpp"
 #include "flashtwin/core/io.hpp"
@@ -15,7 +16,6 @@
 #include "flashtwin/perception/flash_detection.hpp"
 #include "flashtwin/pipeline/run.hpp"
 #include "flashtwin/planner/transit.hpp"
-#include "flashtwin/pipeline/run.hpp"
 #include "flashtwin/pipeline/scenario.hpp"
 #include "flashtwin/sim/mujoco_handles.hpp"
 #include "flashtwin/sim/scan_cell.hpp"
@@ -124,7 +124,8 @@ double duration_of(const Motion& m) {
 }
 
 PlanningWorld::PlanningWorld(const Scenario& sc, const CellSetup& setup, const MeshBvh& cad_C,
-                             const Pose& X_WC_plan, double burr_radius, const std::vector<Vec3>& flash_C) {
+                             const Pose& X_WC_plan, double burr_radius, const std::vector<Vec3>& flash_C,
+                             bool burr_checks_body) {
   sim::CellSpec spec = setup.spec;
   if (spec.fixtures.empty()) spec.fixtures = sim::fixture_blocks(spec, setup.casting.nominal);
   model_ = sim::load_mjcf_string(sim::cell_mjcf(sc.robot, spec), "planning_world.xml");
@@ -132,6 +133,7 @@ PlanningWorld::PlanningWorld(const Scenario& sc, const CellSetup& setup, const M
   const sim::BurrHolder holder = sim::holder_for(sc.robot.tool, burr_radius);
   cell_ = std::make_unique<sim::CellCollision>(*model_, cad_C, X_WC_plan, nullptr, holder.shank_radius,
                                                holder.collet_radius);
+  cell_->set_burr_checks_body(burr_checks_body);
   if (!flash_C.empty()) {
     std::vector<Vec3> flash_W;
     flash_W.reserve(flash_C.size());
@@ -170,7 +172,7 @@ JobMotions plan_job_motions(const Scenario& sc, const ScenarioScan& ss, const Po
     auto& fn = clearances[burr_radius];
     if (!fn) {
       auto& w = worlds[burr_radius];
-      w = std::make_unique<PlanningWorld>(sc, ss.setup, cad_C, X_WC_plan, burr_radius, flash_C);
+      w = std::make_unique<PlanningWorld>(sc, ss.setup, cad_C, X_WC_plan, burr_radius, flash_C, true);
       fn = w->clearance();
     }
     return fn;
@@ -276,13 +278,15 @@ void Execution::run_motions(const ScenarioScan& ss, const std::vector<Motion>& m
   summary_.X_CB.push_back(ss.setup.spec.X_WC.inverse() * ss.setup.spec.X_WB);
   // The twin's collision measurement: the casting where it truly stands, its standing flash;
   // one per burr (a rack burr stands on its own, thinner shank in the slim holder).
-  std::map<double, std::unique_ptr<sim::CellCollision>> cells;
-  const auto cell_for = [&](double burr_radius) -> const sim::CellCollision* {
-    auto& c = cells[burr_radius];
+  // In a transit the burr touching the casting's body is a collision too (it is no cut).
+  std::map<std::pair<double, bool>, std::unique_ptr<sim::CellCollision>> cells;
+  const auto cell_for = [&](double burr_radius, bool transit) -> const sim::CellCollision* {
+    auto& c = cells[{burr_radius, transit}];
     if (!c) {
       const sim::BurrHolder holder = sim::holder_for(sc_.robot.tool, burr_radius);
       c = std::make_unique<sim::CellCollision>(*model, grid.nominal(), ss.setup.spec.X_WC, &grid,
                                                holder.shank_radius, holder.collet_radius);
+      c->set_burr_checks_body(transit);
     }
     return c.get();
   };
@@ -308,7 +312,7 @@ void Execution::run_motions(const ScenarioScan& ss, const std::vector<Motion>& m
     // The burr this path was planned for (a rack burr after a tool change; same length).
     sim::ToolParams path_tool = tool;
     if (motion.tool_radius > 0) path_tool.radius = motion.tool_radius;
-    ep.collisions = cell_for(path_tool.radius);
+    ep.collisions = cell_for(path_tool.radius, motion.transit);
     path_tool.radius += sc_.faults.tool_radius_error;  // a drill: not the burr planned for
     // The flange sensor's noise, offset and drift: one stream per motion of this run.
     ep.sensor_seed = sc_.seed * 0x9E3779B97F4A7C15ull + 0x5E15E0ull + 131 * static_cast<std::uint64_t>(k) +

@@ -206,7 +206,8 @@ CollisionHit CellCollision::check_geom(const mjData& d, std::size_t k, double re
     if (o.under_base && rg.on_base_links) continue;
     if (obstacle_distance(o, X_WG.translation()) < far) near.push_back(&o);
   }
-  const bool cuts = rg.name == "burr";  // the burr cutting the casting is the process model's
+  // The burr cutting the casting is the process model's (unless a planner asks for it).
+  const bool cuts = rg.name == "burr" && !burr_checks_body_;
   const bool casting_near = !cuts && casting_box_W_.exteriorDistance(X_WG.translation()) < far;
   int hint = -1;
   for (const Ball& ball : rg.balls) {

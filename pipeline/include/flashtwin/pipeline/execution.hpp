@@ -60,9 +60,12 @@ class PlanningWorld {
   /// @param flash_C flash the planner knows of (detected points, {C}): obstacles of every robot
   ///        geom, the burr's too (sim::CellCollision::set_known_flash); empty for grinding
   ///        samples, whose burr cuts it
+  /// @param burr_checks_body the burr is checked against the CAD body too (transits: between
+  ///        paths it must not pass through the casting); false for grinding samples
   /// @throws InputError (the cell's MJCF)
   PlanningWorld(const Scenario& sc, const CellSetup& setup, const MeshBvh& cad_C,
-                const Pose& X_WC_plan, double burr_radius, const std::vector<Vec3>& flash_C = {});
+                const Pose& X_WC_plan, double burr_radius, const std::vector<Vec3>& flash_C = {},
+                bool burr_checks_body = false);
   PlanningWorld(const PlanningWorld&) = delete;
   PlanningWorld& operator=(const PlanningWorld&) = delete;
   /// The robot's clearance at a configuration (valid while this object lives); nothing nearer

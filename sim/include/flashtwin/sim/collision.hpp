@@ -72,6 +72,10 @@ class CellCollision {
   /// to one per `cell`-sized cube. Obstacle "flash (detected)". Call before any check.
   void set_known_flash(const std::vector<Vec3>& points_W, double cell = 2e-3);
 
+  /// Checks the burr against the CAD body too (a planner's transits: between paths the burr must
+  /// not pass through the casting; while grinding its cut into the body is the process model's
+  /// gouge). Obstacle "casting". Call before any check.
+  void set_burr_checks_body(bool on) { burr_checks_body_ = on; }
   /// Number of robot geoms checked.
   std::size_t robot_geoms() const { return robot_.size(); }
   /// The closest approach of robot geom k (0 ≤ k < robot_geoms()) to any obstacle, with the
@@ -125,6 +129,7 @@ class CellCollision {
   const MaterialGrid* flash_ = nullptr;
   std::vector<Vec3> known_flash_W_;
   Eigen::AlignedBox3d known_flash_box_W_;
+  bool burr_checks_body_ = false;
 };
 
 /// Checks a running simulation at every step without redoing the geometry where nothing can
