@@ -140,8 +140,28 @@ PlanningWorld::PlanningWorld(const Scenario& sc, const CellSetup& setup, const M
     for (const Vec3& p : flash_C) flash_W.push_back(X_WC_plan * p);
     cell_->set_known_flash(flash_W);
   }
-  for (int i = 0; i < kNumJoints; ++i)
-    qadr_[i] = model_->jnt_qposadr[sim::require_id(model_.get(), mjOBJ_JOINT, "joint" + std::to_string(i + 1))];
+  dynamics_data_ = sim::make_data(model_.get());
+  for (int i = 0; i < kNumJoints; ++i) {
+    const int j = sim::require_id(model_.get(), mjOBJ_JOINT, "joint" + std::to_string(i + 1));
+    qadr_[i] = model_->jnt_qposadr[j];
+    dadr_[i] = model_->jnt_dofadr[j];
+  }
+}
+
+planner::TorqueFn PlanningWorld::torque() {
+  return [this](const Vector6& q, const Vector6& dq, const Vector6& ddq) {
+    mjData* d = dynamics_data_.get();
+    for (int i = 0; i < kNumJoints; ++i) {
+      d->qpos[qadr_[i]] = q[i];
+      d->qvel[dadr_[i]] = dq[i];
+      d->qacc[dadr_[i]] = ddq[i];
+    }
+    std::vector<mjtNum> tau(static_cast<std::size_t>(model_->nv));
+    sim::rigid_inverse_dynamics(model_.get(), d, tau.data());
+    Vector6 out;
+    for (int i = 0; i < kNumJoints; ++i) out[i] = tau[static_cast<std::size_t>(dadr_[i])];
+    return out;
+  };
 }
 
 planner::ClearanceFn PlanningWorld::clearance(double reach) {

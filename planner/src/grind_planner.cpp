@@ -886,6 +886,77 @@ double lead_cap_at(const GrindParams& P, const std::vector<PathSample>& ps, std:
   return std::max(cap, P.max_extra_tilt);
 }
 
+// The largest share of its torque budget (factor × limit, less what gravity takes) a timed
+// motion's dynamic torque asks of any joint: k² for the uniform slow-down by k that brings every
+// joint within budget. Slowing down by k scales q̇ by 1/k and q̈ by 1/k²; with gravity g(q)
+// unchanged the torque becomes g + (τ − g)/k² (the velocity-product and damping terms fall at
+// least as fast), so a joint with |τ| over its budget L needs k² ≥ |τ − g| / (L − |g|). Steps
+// at low speed and acceleration (the cut at the feed) are not evaluated: their torque is
+// gravity's. Returns 1 when every joint is within budget.
+double torque_slowdown_sq(const RobotModel& robot, const JointTrajectory& T, const TorqueFn& torque,
+                          double factor) {
+  double k2 = 1;
+  const Vector6 zero = Vector6::Zero();
+  for (std::size_t n = 0; n < T.q.size(); ++n) {
+    bool moving = false;
+    for (int j = 0; j < kNumJoints && !moving; ++j) {
+      const JointLimits& L = robot.limits[static_cast<std::size_t>(j)];
+      moving = std::abs(T.ddq[n][j]) > 0.05 * L.acceleration || std::abs(T.dq[n][j]) > 0.1 * L.velocity;
+    }
+    if (!moving) continue;
+    const Vector6 tau = torque(T.q[n], T.dq[n], T.ddq[n]);
+    Vector6 g = Vector6::Constant(std::nan(""));
+    for (int j = 0; j < kNumJoints; ++j) {
+      const double budget = factor * robot.limits[static_cast<std::size_t>(j)].torque;
+      if (!(budget > 0) || std::abs(tau[j]) <= budget) continue;
+      if (std::isnan(g[0])) g = torque(T.q[n], zero, zero);
+      // Gravity alone near the budget: slow down as if a tenth of it were left.
+      const double room = std::max(budget - std::abs(g[j]), 0.1 * budget);
+      k2 = std::max(k2, std::abs(tau[j] - g[j]) / room);
+    }
+  }
+  return k2;
+}
+
+// time_parametrize, slowed down (velocity limits / k, acceleration limits / k²) until the motion
+// asks no joint more than P.torque_factor of its torque limit; a few rounds, as the path's own
+// bounds (feed, path acceleration) make the slow-down less than uniform.
+TimingResult time_within_torque(const RobotModel& robot, const std::vector<double>& s,
+                                const std::vector<Vector6>& q, TimingParams tp, const GrindParams& P) {
+  TimingResult tr = time_parametrize(robot, s, q, tp);
+  if (!P.torque || !tr.ok()) return tr;
+  Vector6 v, a;
+  for (int j = 0; j < kNumJoints; ++j) {
+    v[j] = tp.velocity_limits ? (*tp.velocity_limits)[j] : robot.limits[static_cast<std::size_t>(j)].velocity;
+    a[j] = tp.acceleration_limits ? (*tp.acceleration_limits)[j]
+                                  : robot.limits[static_cast<std::size_t>(j)].acceleration;
+  }
+  for (int round = 0; round < 4; ++round) {
+    const double k2 = torque_slowdown_sq(robot, tr.trajectory, P.torque, P.torque_factor);
+    if (k2 <= 1) break;
+    const double k2_step = 1.05 * k2;  // a little beyond: the slow-down is not quite uniform
+    v /= std::sqrt(k2_step);
+    a /= k2_step;
+    tp.velocity_limits = v;
+    tp.acceleration_limits = a;
+    TimingResult slower = time_parametrize(robot, s, q, tp);
+    if (!slower.ok()) break;
+    tr = std::move(slower);
+    // The ratios against the robot's own limits, not the lowered ones timed with.
+    tr.max_velocity_ratio.setZero();
+    tr.max_accel_ratio.setZero();
+    for (std::size_t n = 0; n < tr.trajectory.q.size(); ++n)
+      for (int j = 0; j < kNumJoints; ++j) {
+        const JointLimits& L = robot.limits[static_cast<std::size_t>(j)];
+        tr.max_velocity_ratio[j] = std::max(tr.max_velocity_ratio[j], std::abs(tr.trajectory.dq[n][j]) / L.velocity);
+        tr.max_accel_ratio[j] = std::max(tr.max_accel_ratio[j], std::abs(tr.trajectory.ddq[n][j]) / L.acceleration);
+      }
+    tr.max_joint_velocity_ratio = tr.max_velocity_ratio.maxCoeff();
+    tr.max_joint_accel_ratio = tr.max_accel_ratio.maxCoeff();
+  }
+  return tr;
+}
+
 }  // namespace
 
 namespace {
@@ -1615,7 +1686,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     }
     TimingParams tp = P.timing;
     tp.feed = g.feed;
-    const TimingResult tr = time_parametrize(robot_timing, s, q, tp);
+    const TimingResult tr = time_within_torque(robot_timing, s, q, tp, P);
     if (!tr.ok()) {
       const std::size_t i =
           g.first_sample + static_cast<std::size_t>(std::max(0, tr.failed_sample));

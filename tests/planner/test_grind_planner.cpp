@@ -783,6 +783,54 @@ TEST(GrindPlanner, LeadInAndOutKeepTheBurrOffTheWallWhileItPlungesAndLifts) {
     EXPECT_NEAR(f.samples[i].axis_offset, rad + P.lead_clearance, 1e-12) << i;
 }
 
+// Timing bounds joint velocities and accelerations only; with the arm's dynamics given, a
+// motion that would ask a joint more than torque_factor of its torque limit is timed again more
+// slowly (tilted 8032: a lift swung the shoulder at its acceleration limit, asked 400 N·m of
+// 400, the servo saturated and the burr fell 10 mm into the table). Here a synthetic arm whose
+// most accelerated joint needs τ = g + c·q̈, c set so the plan timed without it asks twice the
+// dynamic budget.
+TEST(GrindPlanner, TimedMotionKeepsWithinTheJointTorques) {
+  const RobotModel robot = ftest::ft6();
+  const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
+  GrindParams P = flush();
+  P.lead_clearance = 0.5e-3;
+  P.approach_distance = 0.05;  // long, fast moves in the air, quick ramps
+  P.approach_feed = 1.0;
+  P.timing.max_path_accel = 5.0;
+  P.timing.max_path_jerk = 200.0;
+  const GrindPath path = wall_line(-0.05, 0.05, 0.005);
+  const GrindResult fast = plan_grind(robot, X_BC, path, P);
+  ASSERT_TRUE(fast.ok()) << fast.message;
+  int j = 0;
+  double peak = 0;  // the largest |q̈_j| / limit of any joint
+  for (const Vector6& a : fast.trajectory.ddq)
+    for (int i = 0; i < 6; ++i)
+      if (std::abs(a[i]) / robot.limits[i].acceleration > peak) peak = std::abs(a[i]) / robot.limits[i].acceleration, j = i;
+  ASSERT_GT(peak, 0.3) << "the test needs a motion that accelerates a joint";
+  const double budget = P.torque_factor * robot.limits[j].torque, g = 0.3 * budget;
+  const double c = 2 * (budget - g) / (peak * robot.limits[j].acceleration);
+  int calls = 0;
+  P.torque = [&](const Vector6&, const Vector6&, const Vector6& ddq) {
+    ++calls;
+    Vector6 tau = Vector6::Zero();
+    tau[j] = g + c * ddq[j];
+    return tau;
+  };
+  const GrindResult slow = plan_grind(robot, X_BC, path, P);
+  ASSERT_TRUE(slow.ok()) << slow.message;
+  EXPECT_GT(calls, 0);
+  double asked = 0;
+  for (const Vector6& a : slow.trajectory.ddq) asked = std::max(asked, std::abs(g + c * a[j]));
+  EXPECT_LE(asked, budget * (1 + 1e-6)) << "joint " << j + 1;
+  EXPECT_GT(asked, 0.8 * budget) << "slowed more than needed";
+  EXPECT_GT(slow.total_time, fast.total_time);
+  // The same path, only slower: the same samples, a sound trajectory.
+  ASSERT_EQ(slow.samples.size(), fast.samples.size());
+  for (std::size_t i = 0; i < slow.samples.size(); ++i)
+    ASSERT_LT((slow.samples[i].q - fast.samples[i].q).norm(), 1e-12) << i;
+  expect_trajectory_sound(robot, slow);
+}
+
 TEST(GrindPlanner, PassesInAHoleStopAtItsCentre) {
   // A ring fin 8 mm high in a hole of radius r + 3.5 mm: past an axis offset of 3.5 mm the
   // burr's axis would cross the hole's centre, so the passes take 3.5 mm: two roughing passes

@@ -72,12 +72,18 @@ class PlanningWorld {
   /// than `reach` reads as `reach` (a small reach is much faster: plan_grind only asks whether a
   /// sample comes within its min_clearance).
   planner::ClearanceFn clearance(double reach = sim::CellCollision::kReach);
+  /// The torques the cell model's arm needs to move through (q, q̇, q̈): rigid-body inverse
+  /// dynamics of its links and tool with armature and joint damping (what the executor's
+  /// feedforward asks of the servos; valid while this object lives).
+  planner::TorqueFn torque();
 
  private:
   sim::MjModelPtr model_;
   sim::MjDataPtr data_;
+  sim::MjDataPtr dynamics_data_;
   std::unique_ptr<sim::CellCollision> cell_;
   int qadr_[kNumJoints] = {};
+  int dadr_[kNumJoints] = {};
 };
 
 /// One setup's whole job as motions in order: home → the first path's approach, each path,

@@ -93,6 +93,16 @@ struct GrindParams {
   /// not checked.
   ClearanceFn clearance;
   double min_clearance = 0.3e-3;  ///< [m]
+  /// The torques each timed motion needs (inverse dynamics): where a non-cutting stretch would
+  /// ask more than torque_factor of a joint's torque limit the segment is timed again more
+  /// slowly (velocity limits / k, acceleration limits / k²). Timing bounds joint velocities and
+  /// accelerations only: a lift that swung the shoulder at its acceleration limit asked 400 N·m
+  /// of a 400 N·m joint, the servo saturated and the burr fell 10 mm into the table (tilted
+  /// 8032). Empty: not checked.
+  TorqueFn torque;
+  /// Fraction of each joint's torque limit a timed motion may ask, the rest kept for the process
+  /// force and the servo's corrections [-].
+  double torque_factor = 0.7;
   double max_depth_of_cut = 0.002;  ///< largest radial depth of cut of a roughing pass [m]
   /// Radial depth of the last (finishing) pass when the fin height is known [m]: the roughing
   /// passes take the fin down to this, the last pass cuts it to the wall under a light load,
