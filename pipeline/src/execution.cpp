@@ -141,6 +141,7 @@ PlanningWorld::PlanningWorld(const Scenario& sc, const CellSetup& setup, const M
     cell_->set_known_flash(flash_W);
   }
   dynamics_data_ = sim::make_data(model_.get());
+  tau_.resize(static_cast<std::size_t>(model_->nv));
   for (int i = 0; i < kNumJoints; ++i) {
     const int j = sim::require_id(model_.get(), mjOBJ_JOINT, "joint" + std::to_string(i + 1));
     qadr_[i] = model_->jnt_qposadr[j];
@@ -156,10 +157,9 @@ planner::TorqueFn PlanningWorld::torque() {
       d->qvel[dadr_[i]] = dq[i];
       d->qacc[dadr_[i]] = ddq[i];
     }
-    std::vector<mjtNum> tau(static_cast<std::size_t>(model_->nv));
-    sim::rigid_inverse_dynamics(model_.get(), d, tau.data());
+    sim::rigid_inverse_dynamics(model_.get(), d, tau_.data());
     Vector6 out;
-    for (int i = 0; i < kNumJoints; ++i) out[i] = tau[static_cast<std::size_t>(dadr_[i])];
+    for (int i = 0; i < kNumJoints; ++i) out[i] = tau_[static_cast<std::size_t>(dadr_[i])];
     return out;
   };
 }

@@ -905,14 +905,14 @@ double torque_slowdown_sq(const RobotModel& robot, const JointTrajectory& T, con
     }
     if (!moving) continue;
     const Vector6 tau = torque(T.q[n], T.dq[n], T.ddq[n]);
-    Vector6 g = Vector6::Constant(std::nan(""));
+    std::optional<Vector6> g;  // gravity's share, evaluated once a joint is over budget
     for (int j = 0; j < kNumJoints; ++j) {
       const double budget = factor * robot.limits[static_cast<std::size_t>(j)].torque;
       if (!(budget > 0) || std::abs(tau[j]) <= budget) continue;
-      if (std::isnan(g[0])) g = torque(T.q[n], zero, zero);
+      if (!g) g = torque(T.q[n], zero, zero);
       // Gravity alone near the budget: slow down as if a tenth of it were left.
-      const double room = std::max(budget - std::abs(g[j]), 0.1 * budget);
-      k2 = std::max(k2, std::abs(tau[j] - g[j]) / room);
+      const double room = std::max(budget - std::abs((*g)[j]), 0.1 * budget);
+      k2 = std::max(k2, std::abs(tau[j] - (*g)[j]) / room);
     }
   }
   return k2;
@@ -943,14 +943,11 @@ TimingResult time_within_torque(const RobotModel& robot, const std::vector<doubl
     if (!slower.ok()) break;
     tr = std::move(slower);
     // The ratios against the robot's own limits, not the lowered ones timed with.
-    tr.max_velocity_ratio.setZero();
-    tr.max_accel_ratio.setZero();
-    for (std::size_t n = 0; n < tr.trajectory.q.size(); ++n)
-      for (int j = 0; j < kNumJoints; ++j) {
-        const JointLimits& L = robot.limits[static_cast<std::size_t>(j)];
-        tr.max_velocity_ratio[j] = std::max(tr.max_velocity_ratio[j], std::abs(tr.trajectory.dq[n][j]) / L.velocity);
-        tr.max_accel_ratio[j] = std::max(tr.max_accel_ratio[j], std::abs(tr.trajectory.ddq[n][j]) / L.acceleration);
-      }
+    for (int j = 0; j < kNumJoints; ++j) {
+      const JointLimits& L = robot.limits[static_cast<std::size_t>(j)];
+      tr.max_velocity_ratio[j] *= v[j] / L.velocity;
+      tr.max_accel_ratio[j] *= a[j] / L.acceleration;
+    }
     tr.max_joint_velocity_ratio = tr.max_velocity_ratio.maxCoeff();
     tr.max_joint_accel_ratio = tr.max_accel_ratio.maxCoeff();
   }

@@ -81,6 +81,7 @@ class PlanningWorld {
   sim::MjModelPtr model_;
   sim::MjDataPtr data_;
   sim::MjDataPtr dynamics_data_;
+  std::vector<mjtNum> tau_;  // the inverse dynamics' output, reused across calls
   std::unique_ptr<sim::CellCollision> cell_;
   int qadr_[kNumJoints] = {};
   int dadr_[kNumJoints] = {};
