@@ -210,7 +210,10 @@ CollisionHit CellCollision::check_geom(const mjData& d, std::size_t k, double re
   const bool cuts = rg.name == "burr" && !burr_checks_body_;
   const bool casting_near = !cuts && casting_box_W_.exteriorDistance(X_WG.translation()) < far;
   int hint = -1;
-  for (const Ball& ball : rg.balls) {
+  // Nothing near the geom: its balls need no look (most geoms, most of the time).
+  const bool anything_near = !near.empty() || casting_near;
+  for (std::size_t b = 0; anything_near && b < rg.balls.size(); ++b) {
+    const Ball& ball = rg.balls[b];
     const Vec3 p_W = X_WG * ball.centre;
     for (const Obstacle* o : near) {
       const double c = obstacle_distance(*o, p_W) - ball.radius;

@@ -1060,14 +1060,6 @@ RemainingFlash split_remaining_flash(const MaterialGrid& grid) {
 
 TriangleMesh remaining_flash_mesh(const MaterialGrid& grid) {
   const MaterialGrid::Impl& g = MaterialAccess::get(grid);
-  TriangleMesh mesh;
-  std::unordered_map<std::uint64_t, int, KeyHash> vertex;
-  auto corner = [&](std::int64_t i, std::int64_t j, std::int64_t k) {
-    const auto [it, fresh] =
-        vertex.try_emplace(pack3(i, j, k), static_cast<int>(mesh.vertices.size()));
-    if (fresh) mesh.vertices.emplace_back(i * g.h, j * g.h, k * g.h);
-    return it->second;
-  };
   auto flash_at = [&](std::int64_t i, std::int64_t j, std::int64_t k) {
     const Brick* b = g.find(floor_div(i, kBrick), floor_div(j, kBrick), floor_div(k, kBrick));
     if (!b) return false;
@@ -1076,6 +1068,14 @@ TriangleMesh remaining_flash_mesh(const MaterialGrid& grid) {
         (i - std::int64_t{b->bx} * kBrick) + 8 * (j - std::int64_t{b->by} * kBrick);
     return ((b->flash[z] >> bit) & 1) != 0;
   };
+  // The exposed faces, grouped by orientation (axis d, side s) and by the plane they lie in:
+  // face (d, s) of voxel v lies in plane v[d] + (s > 0) and covers the unit square at
+  // (v[du], v[dv]) in it, du = d + 1 and dv = d + 2 (mod 3).
+  struct Face {
+    std::int64_t plane, u, v;
+    bool operator<(const Face& o) const { return std::tie(plane, v, u) < std::tie(o.plane, o.v, o.u); }
+  };
+  std::array<std::vector<Face>, 6> faces;  // index 2·d + (s > 0)
   for (const auto& b : g.bricks) {
     if (b.n_flash == 0) continue;
     for (int z = 0; z < 8; ++z)
@@ -1085,31 +1085,71 @@ TriangleMesh remaining_flash_mesh(const MaterialGrid& grid) {
                                             std::int64_t{b.by} * kBrick + (bit >> 3),
                                             std::int64_t{b.bz} * kBrick + z};
         for (int d = 0; d < 3; ++d)
-          for (int s = -1; s <= 1; s += 2) {
+          for (int s = 0; s < 2; ++s) {
             std::array<std::int64_t, 3> nb = v;
-            nb[d] += s;
+            nb[d] += s ? 1 : -1;
             if (flash_at(nb[0], nb[1], nb[2])) continue;
-            // Face on side s of axis d; corners ordered counter-clockwise seen from outside.
-            const int du = (d + 1) % 3, dv = (d + 2) % 3;
-            std::array<std::int64_t, 3> c0 = v;
-            if (s > 0) c0[d] += 1;
-            std::array<std::int64_t, 3> c1 = c0, c2 = c0, c3 = c0;
-            c1[du] += 1;
-            c2[du] += 1;
-            c2[dv] += 1;
-            c3[dv] += 1;
-            const int i0 = corner(c0[0], c0[1], c0[2]), i1 = corner(c1[0], c1[1], c1[2]);
-            const int i2 = corner(c2[0], c2[1], c2[2]), i3 = corner(c3[0], c3[1], c3[2]);
-            if (s > 0) {
-              mesh.triangles.emplace_back(i0, i1, i2);
-              mesh.triangles.emplace_back(i0, i2, i3);
-            } else {
-              mesh.triangles.emplace_back(i0, i2, i1);
-              mesh.triangles.emplace_back(i0, i3, i2);
-            }
+            faces[2 * d + s].push_back({v[d] + s, v[(d + 1) % 3], v[(d + 2) % 3]});
           }
       }
   }
+  TriangleMesh mesh;
+  std::unordered_map<std::uint64_t, int, KeyHash> vertex;
+  auto corner = [&](const std::array<std::int64_t, 3>& c) {
+    const auto [it, fresh] = vertex.try_emplace(pack3(c[0], c[1], c[2]), static_cast<int>(mesh.vertices.size()));
+    if (fresh) mesh.vertices.emplace_back(c[0] * g.h, c[1] * g.h, c[2] * g.h);
+    return it->second;
+  };
+  // Greedy meshing: the faces of one plane merged into rectangles (a run along u, grown along
+  // v while the whole run continues), two triangles each. The surface is the same, with far
+  // fewer triangles on a fin's flat sides (a voxel mesh of a 2 mm fin has millions); the
+  // rectangles meet in T-junctions, so the triangles cover the surface without sharing all edges.
+  for (int d = 0; d < 3; ++d)
+    for (int s = 0; s < 2; ++s) {
+      std::vector<Face>& fs = faces[2 * d + s];
+      std::sort(fs.begin(), fs.end());
+      std::unordered_map<std::uint64_t, std::size_t, KeyHash> index;  // (plane, u, v) → face
+      index.reserve(fs.size());
+      for (std::size_t k = 0; k < fs.size(); ++k) index.emplace(pack3(fs[k].plane, fs[k].u, fs[k].v), k);
+      std::vector<char> used(fs.size(), 0);
+      const auto free_face = [&](std::int64_t plane, std::int64_t u, std::int64_t v) -> std::ptrdiff_t {
+        const auto it = index.find(pack3(plane, u, v));
+        return it == index.end() || used[it->second] ? -1 : static_cast<std::ptrdiff_t>(it->second);
+      };
+      const int du = (d + 1) % 3, dv = (d + 2) % 3;
+      for (std::size_t k = 0; k < fs.size(); ++k) {
+        if (used[k]) continue;
+        const Face f = fs[k];
+        std::int64_t u1 = f.u + 1;  // the run [f.u, u1) along u
+        used[k] = 1;
+        for (std::ptrdiff_t n; (n = free_face(f.plane, u1, f.v)) >= 0; ++u1) used[static_cast<std::size_t>(n)] = 1;
+        std::int64_t v1 = f.v + 1;  // rows [f.v, v1)
+        for (;; ++v1) {
+          bool whole = true;
+          for (std::int64_t u = f.u; u < u1 && whole; ++u) whole = free_face(f.plane, u, v1) >= 0;
+          if (!whole) break;
+          for (std::int64_t u = f.u; u < u1; ++u) used[static_cast<std::size_t>(free_face(f.plane, u, v1))] = 1;
+        }
+        std::array<std::int64_t, 3> c0{};
+        c0[d] = f.plane;
+        c0[du] = f.u;
+        c0[dv] = f.v;
+        std::array<std::int64_t, 3> c1 = c0, c2 = c0, c3 = c0;
+        c1[du] = u1;
+        c2[du] = u1;
+        c2[dv] = v1;
+        c3[dv] = v1;
+        const int i0 = corner(c0), i1 = corner(c1), i2 = corner(c2), i3 = corner(c3);
+        // Counter-clockwise seen from outside (+d for s = 1).
+        if (s) {
+          mesh.triangles.emplace_back(i0, i1, i2);
+          mesh.triangles.emplace_back(i0, i2, i3);
+        } else {
+          mesh.triangles.emplace_back(i0, i2, i1);
+          mesh.triangles.emplace_back(i0, i3, i2);
+        }
+      }
+    }
   return mesh;
 }
 

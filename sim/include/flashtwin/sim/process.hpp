@@ -198,9 +198,10 @@ struct RemainingFlash {
 RemainingFlash split_remaining_flash(const MaterialGrid& grid);
 
 /// Closed surface of the remaining flash: the voxel faces between remaining FLASH voxels and
-/// anything else, outward-oriented, vertices shared (2 triangles per exposed face; edges shared
-/// by four faces where voxels touch only along an edge). Its volume equals the remaining
-/// voxelised flash volume.
+/// anything else, outward-oriented, the faces of each plane merged into rectangles (2 triangles
+/// each; they meet in T-junctions, so edges are not all shared, and where voxels touch only
+/// along an edge four faces meet). Its volume equals the remaining voxelised flash volume and
+/// its area the exposed faces'.
 TriangleMesh remaining_flash_mesh(const MaterialGrid& grid);
 
 // ---------------------------------------------------------------------------------------------
