@@ -223,9 +223,9 @@ CollisionHit CellCollision::check_geom(const mjData& d, std::size_t k, double re
     const double within = best.clearance + ball.radius;
     if (casting_box_W_.exteriorDistance(p_W) > within) continue;
     const Vec3 p_C = X_CW_ * p_W;
-    const ClosestPoint cp = casting_C_.closest(p_C, within, hint);
+    const ClosestPoint cp = casting_C_.closest(p_C, within, ball.hint >= 0 ? ball.hint : hint);
     if (cp.triangle < 0) continue;
-    hint = cp.triangle;
+    hint = ball.hint = cp.triangle;
     const Vec3 n = casting_C_.mesh().triangle_normal(static_cast<std::size_t>(cp.triangle));
     const double signed_d = (p_C - cp.point).dot(n) < 0 ? -cp.distance : cp.distance;
     if (signed_d - ball.radius < best.clearance) best = {signed_d - ball.radius, rg.name, "casting", p_W};

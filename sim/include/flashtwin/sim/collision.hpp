@@ -80,7 +80,8 @@ class CellCollision {
   std::size_t robot_geoms() const { return robot_.size(); }
   /// The closest approach of robot geom k (0 ≤ k < robot_geoms()) to any obstacle, with the
   /// geom posed as in d (geom_xpos / geom_xmat: after mj_kinematics or a step); nothing nearer
-  /// than `reach` (≤ kReach): clearance `reach` (a smaller reach is faster).
+  /// than `reach` (≤ kReach): clearance `reach` (a smaller reach is faster). Keeps search hints
+  /// between calls (same answers): one CellCollision per thread, as the mjData it reads.
   CollisionHit check_geom(const mjData& d, std::size_t k, double reach = kReach) const;
   /// The closest approach of the whole robot.
   CollisionHit check(const mjData& d, double reach = kReach) const;
@@ -99,6 +100,9 @@ class CellCollision {
   struct Ball {
     Vec3 centre;    // in the geom frame
     double radius;  // 0: a surface point
+    // The casting triangle nearest the ball at its last check: the next check starts its search
+    // bounded by it (a bound only: the same answer, found sooner as the robot moves on).
+    mutable int hint = -1;
   };
   struct RobotGeom {
     int geom = -1, body = -1;
