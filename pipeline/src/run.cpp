@@ -625,18 +625,17 @@ Plans plan_setup(const Scenario& sc, const CellSetup& setup, const Perception& p
   out.X_WC_plan = X_WC_plan;
   out.flash_C = perc.flash_C;
   std::map<double, std::unique_ptr<PlanningWorld>> worlds;
-  const auto clearance_for = [&](double burr_radius) {
+  const auto world_for = [&](double burr_radius) -> PlanningWorld& {
     auto& w = worlds[burr_radius];
     if (!w) w = std::make_unique<PlanningWorld>(sc, setup, cad_C, X_WC_plan, burr_radius);
-    return w->clearance(std::max(2e-3, 2 * sc.grind.min_clearance));
+    return *w;
+  };
+  const auto clearance_for = [&](double burr_radius) {
+    return world_for(burr_radius).clearance(std::max(2e-3, 2 * sc.grind.min_clearance));
   };
   // Every timed motion within the arm's torques (the cell model's inverse dynamics: the mounted
   // burr's world, the one the clearance check uses first).
-  {
-    auto& w = worlds[sc.robot.tool.radius];
-    if (!w) w = std::make_unique<PlanningWorld>(sc, setup, cad_C, X_WC_plan, sc.robot.tool.radius);
-    P.torque = w->torque();
-  }
+  P.torque = world_for(sc.robot.tool.radius).torque();
   double vmax = 0, amax = 0, manip = 1e300, total_time = 0, length = 0;
   int planned = 0, skipped = 0, tool_changes = 0, path_pieces = 0;
   json plans = json::array();

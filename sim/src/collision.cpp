@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <set>
+#include <span>
 #include <cmath>
 
 #include "flashtwin/core/errors.hpp"
@@ -211,9 +212,9 @@ CollisionHit CellCollision::check_geom(const mjData& d, std::size_t k, double re
   const bool casting_near = !cuts && casting_box_W_.exteriorDistance(X_WG.translation()) < far;
   int hint = -1;
   // Nothing near the geom: its balls need no look (most geoms, most of the time).
-  const bool anything_near = !near.empty() || casting_near;
-  for (std::size_t b = 0; anything_near && b < rg.balls.size(); ++b) {
-    const Ball& ball = rg.balls[b];
+  const std::span<const Ball> balls = !near.empty() || casting_near ? std::span<const Ball>(rg.balls)
+                                                                     : std::span<const Ball>();
+  for (const Ball& ball : balls) {
     const Vec3 p_W = X_WG * ball.centre;
     for (const Obstacle* o : near) {
       const double c = obstacle_distance(*o, p_W) - ball.radius;

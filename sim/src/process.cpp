@@ -1108,28 +1108,23 @@ TriangleMesh remaining_flash_mesh(const MaterialGrid& grid) {
     for (int s = 0; s < 2; ++s) {
       std::vector<Face>& fs = faces[2 * d + s];
       std::sort(fs.begin(), fs.end());
-      std::unordered_map<std::uint64_t, std::size_t, KeyHash> index;  // (plane, u, v) → face
-      index.reserve(fs.size());
-      for (std::size_t k = 0; k < fs.size(); ++k) index.emplace(pack3(fs[k].plane, fs[k].u, fs[k].v), k);
-      std::vector<char> used(fs.size(), 0);
-      const auto free_face = [&](std::int64_t plane, std::int64_t u, std::int64_t v) -> std::ptrdiff_t {
-        const auto it = index.find(pack3(plane, u, v));
-        return it == index.end() || used[it->second] ? -1 : static_cast<std::ptrdiff_t>(it->second);
-      };
+      // The faces not yet merged into a rectangle, by (plane, u, v).
+      std::unordered_set<std::uint64_t, KeyHash> left;
+      left.reserve(fs.size());
+      for (const Face& f : fs) left.insert(pack3(f.plane, f.u, f.v));
       const int du = (d + 1) % 3, dv = (d + 2) % 3;
-      for (std::size_t k = 0; k < fs.size(); ++k) {
-        if (used[k]) continue;
-        const Face f = fs[k];
+      for (const Face& f : fs) {
+        if (left.erase(pack3(f.plane, f.u, f.v)) == 0) continue;  // in an earlier rectangle
         std::int64_t u1 = f.u + 1;  // the run [f.u, u1) along u
-        used[k] = 1;
-        for (std::ptrdiff_t n; (n = free_face(f.plane, u1, f.v)) >= 0; ++u1) used[static_cast<std::size_t>(n)] = 1;
+        while (left.erase(pack3(f.plane, u1, f.v)) != 0) ++u1;
         std::int64_t v1 = f.v + 1;  // rows [f.v, v1)
-        for (;; ++v1) {
-          bool whole = true;
-          for (std::int64_t u = f.u; u < u1 && whole; ++u) whole = free_face(f.plane, u, v1) >= 0;
-          if (!whole) break;
-          for (std::int64_t u = f.u; u < u1; ++u) used[static_cast<std::size_t>(free_face(f.plane, u, v1))] = 1;
-        }
+        const auto row_left = [&](std::int64_t v) {
+          for (std::int64_t u = f.u; u < u1; ++u)
+            if (!left.count(pack3(f.plane, u, v))) return false;
+          return true;
+        };
+        for (; row_left(v1); ++v1)
+          for (std::int64_t u = f.u; u < u1; ++u) left.erase(pack3(f.plane, u, v1));
         std::array<std::int64_t, 3> c0{};
         c0[d] = f.plane;
         c0[du] = f.u;

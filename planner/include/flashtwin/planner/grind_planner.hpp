@@ -94,8 +94,8 @@ struct GrindParams {
   ClearanceFn clearance;
   double min_clearance = 0.3e-3;  ///< [m]
   /// The torques each timed motion needs (inverse dynamics): where a segment (cut, link,
-  /// approach, retract) would ask more than torque_factor of a joint's torque limit it is timed again more
-  /// slowly (velocity limits / k, acceleration limits / k²). Timing bounds joint velocities and
+  /// approach, retract) would ask more than torque_factor of a joint's torque limit it is timed
+  /// again more slowly (velocity limits / k, acceleration limits / k²). Timing bounds joint velocities and
   /// accelerations only: a lift that swung the shoulder at its acceleration limit asked 400 N·m
   /// of a 400 N·m joint, the servo saturated and the burr fell 10 mm into the table (tilted
   /// 8032). Empty: not checked.
