@@ -100,6 +100,12 @@ Motion motion_of(const PlannedPath& plan) {
   m.trajectory.dq = g.trajectory.dq;
   m.tcp_B = g.tcp_B;
   m.tool_radius = g.tool_radius;
+  // Each approach starts at rest in free air (the first at the motion's start, a later one
+  // where the plan left the part before its finishing pass): the controller tares there.
+  for (std::size_t i = 0; i < g.segments.size(); ++i)
+    if (g.segments[i].kind == planner::SampleKind::kApproach &&
+        (i == 0 || g.segments[i - 1].kind != planner::SampleKind::kApproach))
+      m.trajectory.tare_t.push_back(g.trajectory.t[g.segments[i].first_step]);
   return m;
 }
 

@@ -3,6 +3,7 @@
 #include "flashtwin/pipeline/sweep.hpp"
 
 #include <cmath>
+#include <optional>
 
 #include "flashtwin/core/config.hpp"
 #include "flashtwin/core/errors.hpp"
@@ -413,6 +414,10 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     }
   }
 
+  // planning.retare_before_finish: by default the plan stops in free air (for the sensor's
+  // zero) when the controller reads the F/T sensor for the tool's position (compensation from
+  // the sensor, force control); the oracle compensation needs no stops.
+  std::optional<bool> retare;
   if (root.has("planning")) {
     const ConfigNode pl2 = root.at("planning");
     auto& g = sc.grind;
@@ -421,6 +426,10 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
     g.approach_feed = pl2.get_double("approach_feed", 1e-4, 1.0, g.approach_feed);
     g.plunge_feed = pl2.get_double("plunge_feed", 1e-4, 1.0, g.plunge_feed);
     g.approach_distance = pl2.get_double("approach_distance", 0, 0.5, g.approach_distance);
+    if (pl2.has("retare_before_finish"))
+      retare = pl2.get_bool("retare_before_finish", g.retare_before_finish);
+    g.retare_length = pl2.get_double("retare_length", 0, 10, g.retare_length);
+    g.retare_ramp_time = pl2.get_double("retare_ramp_time", 0, 10, g.retare_ramp_time);
     g.lead = pl2.get_double("lead", -0.8, 0.8, g.lead);
     g.tilt = pl2.get_double("tilt", -0.8, 0.8, g.tilt);
     g.max_depth_of_cut = pl2.get_double("max_depth_of_cut", 1e-5, 0.05, g.max_depth_of_cut);
@@ -626,6 +635,11 @@ Scenario load_scenario(const std::string& path, const std::vector<std::string>& 
   }
 
   if (root.has("expect_sweep")) read_expect_sweep(root.at("expect_sweep"), sc.expect_sweep);
+
+  const sim::ExecParams& xp = sc.execution.exec;
+  sc.grind.retare_before_finish = retare.value_or(
+      (xp.load_compensation && xp.compensation_source == sim::CompensationSource::kSensor) ||
+      xp.force_control.enabled);
 
   root.check_all_used();
   return sc;

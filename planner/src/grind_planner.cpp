@@ -1070,6 +1070,10 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   check_param(std::abs(P.tilt) < M_PI / 2, "tilt", "|tilt| < pi/2 [rad]", P.tilt);
   check_param(P.max_depth_of_cut > 0 && std::isfinite(P.max_depth_of_cut), "max_depth_of_cut",
               "> 0 [m]", P.max_depth_of_cut);
+  check_param(P.retare_length >= 0 && std::isfinite(P.retare_length), "retare_length",
+              ">= 0 [m]", P.retare_length);
+  check_param(P.retare_ramp_time >= 0 && P.retare_ramp_time <= 10, "retare_ramp_time",
+              "0..10 [s]", P.retare_ramp_time);
   check_param(P.finish_depth >= 0 && P.finish_depth <= 0.01, "finish_depth", "0..0.01 [m]",
               P.finish_depth);
   check_param(P.roughing_feed > 0 && std::isfinite(P.roughing_feed), "roughing_feed", "> 0 [m/s]",
@@ -1311,6 +1315,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     int pass;
     std::size_t first, last;
     double feed = 0;  ///< [m/s]; 0: the kind's feed (cutting or approach)
+    double ramp_time = 0;  ///< [s] GrindSegment::ramp_time
   };
   std::vector<SegDraft> segs;
   // Each path sample's lead cap (the same on every pass), and the least of them.
@@ -1335,8 +1340,10 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     g.path_index = q.path_index;
     return g;
   };
-  const auto lift_steps =
-      static_cast<std::size_t>(std::max(1.0, std::ceil(P.approach_distance / P.spacing - 1e-9)));
+  // Samples of a straight move `height` long along the fin normal (at least one).
+  const auto lift_steps = [&](double height) {
+    return static_cast<std::size_t>(std::max(1.0, std::ceil(height / P.spacing - 1e-9)));
+  };
   // Lead-in and lead-out: the approach comes down `clear` off the first pass's wall offset and
   // steps in to it; the last pass steps off by `clear_out` before the retract lifts, so the
   // burr neither plunges nor lifts along the finished wall (in a hole: each at most to its
@@ -1344,8 +1351,6 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   const auto clearance = [&](double e) {
     return std::clamp(std::min(P.lead_clearance, hole_r - radius - e), 0.0, P.lead_clearance);
   };
-  const double clear = clearance(res.pass_offsets.front());
-  const double clear_out = clearance(res.pass_offsets.back());
   // Radial move at path sample k of `pass` from offset e0 (the last sample so far) to e1. The
   // lead-in ends on the pass's first sample, pushed next (`onto_next`); the lead-out pushes
   // its end.
@@ -1363,43 +1368,100 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     segs.push_back({kind, pass, first, C.geo.size() - (onto_next ? 0 : 1),
                     contact_feed(P.feed, std::min(e0, e1))});
   };
-  if (P.approach_distance > 0) {
-    // The last stretch of the approach plunges the cutter through the fin (its tip crosses the
-    // fin plane at lift = tip depth): that part runs at the plunge feed, the rest in the air at
-    // the approach feed.
-    const double plunge_height = std::min(P.approach_distance, tip_depth + 0.002);
-    std::size_t split = 0;
-    for (std::size_t i = 0; i < lift_steps; ++i) {
-      Geo g = cut_geo(0, 0);
+  // The last stretch of a descent plunges the cutter through the fin (its tip crosses the fin
+  // plane at lift = tip depth): that part runs at the plunge feed, the rest in the air at the
+  // approach feed.
+  const double plunge_height = std::min(P.approach_distance, tip_depth + 0.002);
+  // Approach of `pass` at its path sample k: down along the fin normal from `height` above
+  // it, `clear` off its wall offset, then the lead-in. `from_last`: the top is the last sample
+  // so far (pushed by the move before), else it is pushed here as the motion's first sample.
+  // `plunge_feed`: the feed of the last stretch, through the fin (the air above it at the
+  // approach feed).
+  const auto come_down = [&](int pass, std::size_t k, double height, bool from_last,
+                             double plunge_feed) {
+    const double e = res.pass_offsets[static_cast<std::size_t>(pass)];
+    const double cl = clearance(e);
+    const std::size_t steps = lift_steps(height);
+    const std::size_t first = from_last ? C.geo.size() - 1 : C.geo.size();
+    // The first sample at or below the plunge height (none: npos).
+    constexpr std::size_t npos = static_cast<std::size_t>(-1);
+    std::size_t split = from_last && height <= plunge_height ? first : npos;
+    for (std::size_t i = from_last ? 1 : 0; i < steps; ++i) {
+      Geo g = cut_geo(pass, k);
       g.kind = SampleKind::kApproach;
-      g.lift = P.approach_distance * (1 - static_cast<double>(i) / lift_steps);
-      g.extra += clear;
-      if (split == 0 && g.lift <= plunge_height) split = i;
+      g.lift = height * (1 - static_cast<double>(i) / static_cast<double>(steps));
+      g.extra += cl;
+      if (split == npos && g.lift <= plunge_height) split = C.geo.size();
       C.geo.push_back(g);
     }
-    if (clear > 0) {
-      Geo g = cut_geo(0, 0);
+    if (cl > 0) {
+      Geo g = cut_geo(pass, k);
       g.kind = SampleKind::kApproach;
-      g.extra += clear;
-      C.geo.push_back(g);  // down at the fin plane, `clear` off the wall offset
+      g.extra += cl;
+      C.geo.push_back(g);  // down at the fin plane, `cl` off the wall offset
     }
     // The descent ends on the first cut sample (pushed next) or, with a lead-in, down here.
-    const std::size_t down = clear > 0 ? C.geo.size() - 1 : C.geo.size();
-    if (split == 0 || split + 1 >= lift_steps) {
-      segs.push_back({SampleKind::kApproach, 0, 0, down, P.plunge_feed});
+    const std::size_t down = cl > 0 ? C.geo.size() - 1 : C.geo.size();
+    if (split == npos || split == first || split + 1 >= first + steps) {
+      segs.push_back({SampleKind::kApproach, pass, first, down, plunge_feed});
     } else {
-      segs.push_back({SampleKind::kApproach, 0, 0, split});
-      segs.push_back({SampleKind::kApproach, 0, split, down, P.plunge_feed});
+      segs.push_back({SampleKind::kApproach, pass, first, split});
+      segs.push_back({SampleKind::kApproach, pass, split, down, plunge_feed});
     }
-    if (clear > 0) {
-      const double e0 = res.pass_offsets.front();
-      radial(0, 0, SampleKind::kApproach, e0 + clear, e0, true);
+    if (cl > 0) radial(pass, k, SampleKind::kApproach, e + cl, e, true);
+  };
+  // Retract from the last sample so far, path sample k of its pass: the lead-out, then
+  // straight up `height` along the fin normal.
+  const auto lift_off = [&](std::size_t k, double height) {
+    const Geo last = C.geo.back();
+    const double cl = clearance(last.extra);
+    if (cl > 0) radial(last.pass, k, SampleKind::kRetract, last.extra, last.extra + cl, false);
+    const std::size_t first = C.geo.size() - 1;
+    const Geo end = C.geo.back();
+    const std::size_t steps = lift_steps(height);
+    for (std::size_t i = 1; i <= steps; ++i) {
+      Geo g = end;
+      g.kind = SampleKind::kRetract;
+      g.lift = height * static_cast<double>(i) / static_cast<double>(steps);
+      C.geo.push_back(g);
     }
-  }
+    segs.push_back({SampleKind::kRetract, last.pass, first, C.geo.size() - 1});
+  };
+  // Stops in free air for a controller that reads a flange F/T sensor (retare_before_finish):
+  // up out of the part from the last sample so far (path sample `from_k` of its pass) to the
+  // plunge height, where the burr's tip is 2 mm above the fin plane and the arm rests (the
+  // controller zeroes its sensor there), a step across in the air to above path sample `k` of
+  // `pass`, `clear` off its offset, and down again with the lead-in. Every pass before has cut
+  // the fin to within the lead clearance of the wall offset, so the descent is in the air: at
+  // the approach feed.
+  const auto stop_in_air = [&](std::size_t from_k, int pass, std::size_t k) {
+    lift_off(from_k, plunge_height);
+    const Geo top = C.geo.back();
+    const double e = res.pass_offsets[static_cast<std::size_t>(pass)];
+    const double e1 = e + clearance(e);
+    const std::size_t first = C.geo.size() - 1;
+    const auto m = static_cast<std::size_t>(
+        std::max(0.0, std::ceil(std::abs(top.extra - e1) / P.spacing - 1e-9)));
+    for (std::size_t i = 1; i <= m; ++i) {
+      Geo g = cut_geo(pass, k);
+      g.kind = SampleKind::kApproach;
+      g.lift = plunge_height;
+      g.extra = top.extra + (e1 - top.extra) * static_cast<double>(i) / static_cast<double>(m);
+      C.geo.push_back(g);
+    }
+    if (m > 0) segs.push_back({SampleKind::kApproach, pass, first, C.geo.size() - 1});
+    const bool in_air = pass > 0 && res.pass_offsets[static_cast<std::size_t>(pass - 1)] < e1;
+    come_down(pass, k, plunge_height, true, in_air ? P.approach_feed : P.plunge_feed);
+  };
+  const bool retare = P.retare_before_finish && P.approach_distance > 0 && res.passes > 1;
+  if (P.approach_distance > 0) come_down(0, 0, P.approach_distance, false, P.plunge_feed);
   // Neighbouring segments share their junction sample: the approach ends on the first cut
   // sample, a link starts on a pass's last sample and ends on the next pass's first.
   for (int pass = 0; pass < res.passes; ++pass) {
-    if (pass > 0) {
+    const bool finishing = pass + 1 == res.passes;
+    if (pass > 0 && retare && finishing) {
+      stop_in_air(ps.size() - 1, pass, 0);
+    } else if (pass > 0) {
       // Radial step-in from the previous pass's end to the next pass's start (same point).
       const Geo end = C.geo.back();
       const double de = end.extra - res.pass_offsets[static_cast<std::size_t>(pass)];
@@ -1414,29 +1476,39 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
       segs.push_back({SampleKind::kLink, pass, first, C.geo.size(),
                       contact_feed(P.feed, res.pass_offsets[static_cast<std::size_t>(pass)])});
     }
-    const std::size_t first = C.geo.size();
-    for (std::size_t k = 0; k < ps.size(); ++k) C.geo.push_back(cut_geo(pass, k));
-    const bool roughing = pass + 1 < res.passes;
-    segs.push_back({SampleKind::kCut, pass, first, C.geo.size() - 1,
-                    contact_feed(roughing ? P.roughing_feed : P.feed,
-                                 res.pass_offsets[static_cast<std::size_t>(pass)])});
-  }
-  if (P.approach_distance > 0) {
-    if (clear_out > 0) {
-      const Geo last = C.geo.back();
-      radial(last.pass, ps.size() - 1, SampleKind::kRetract, last.extra, last.extra + clear_out,
-             false);
+    const double feed = contact_feed(finishing ? P.feed : P.roughing_feed,
+                                     res.pass_offsets[static_cast<std::size_t>(pass)]);
+    // A long finishing pass stops in free air again every retare_length of path (and goes on
+    // from the same path sample), so the sensor's drift since its last zero stays small.
+    // No stop within a quarter of that of the pass's end.
+    const bool split = retare && finishing && P.retare_length > 0;
+    const std::size_t first_piece = segs.size();
+    double left = 0;  // path length still to cut [m]
+    for (std::size_t k = 1; k < ps.size(); ++k) left += (ps[k].p - ps[k - 1].p).norm();
+    std::size_t first = C.geo.size();
+    double run = 0;  // path length since the pass (re)started [m]
+    for (std::size_t k = 0; k < ps.size(); ++k) {
+      if (k > 0) {
+        const double step = (cut_geo(pass, k).p - cut_geo(pass, k - 1).p).norm();
+        run += step;
+        left -= step;
+      }
+      C.geo.push_back(cut_geo(pass, k));
+      if (split && run >= P.retare_length && left > P.retare_length / 4) {
+        segs.push_back({SampleKind::kCut, pass, first, C.geo.size() - 1, feed});
+        stop_in_air(k, pass, k);
+        first = C.geo.size();
+        C.geo.push_back(cut_geo(pass, k));  // on from where it stopped
+        run = 0;
+      }
     }
-    const std::size_t first = C.geo.size() - 1;
-    const Geo end = C.geo.back();
-    for (std::size_t i = 1; i <= lift_steps; ++i) {
-      Geo g = end;
-      g.kind = SampleKind::kRetract;
-      g.lift = P.approach_distance * static_cast<double>(i) / lift_steps;
-      C.geo.push_back(g);
-    }
-    segs.push_back({SampleKind::kRetract, res.passes - 1, first, C.geo.size() - 1});
+    segs.push_back({SampleKind::kCut, pass, first, C.geo.size() - 1, feed});
+    // Pieces that stop on the wall ramp their feed (and with it the process force) gently.
+    if (segs.size() > first_piece + 1)
+      for (std::size_t i = first_piece; i < segs.size(); ++i)
+        if (segs[i].kind == SampleKind::kCut) segs[i].ramp_time = P.retare_ramp_time;
   }
+  if (P.approach_distance > 0) lift_off(ps.size() - 1, P.approach_distance);
   const std::size_t N = C.geo.size();
   // Nominal tool path length (the blend windows are measured in it).
   C.s_nom.assign(N, 0.0);
@@ -1551,6 +1623,7 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     g.feed = sg.feed > 0 ? sg.feed
                          : (sg.kind == SampleKind::kCut || sg.kind == SampleKind::kLink ? P.feed
                                                                                          : P.approach_feed);
+    g.ramp_time = sg.ramp_time;
     res.segments.push_back(g);
   }
   res.path_length = res.samples.back().s;
@@ -1683,6 +1756,12 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     }
     TimingParams tp = P.timing;
     tp.feed = g.feed;
+    if (g.ramp_time > 0) {
+      // A triangular acceleration ramp to the feed v with jerk J takes T = 2·√(v/J) and peaks
+      // at J·T/2: J = 4v/T², peak 2v/T.
+      tp.max_path_jerk = std::min(tp.max_path_jerk, 4 * g.feed / (g.ramp_time * g.ramp_time));
+      tp.max_path_accel = std::min(tp.max_path_accel, 2 * g.feed / g.ramp_time);
+    }
     const TimingResult tr = time_within_torque(robot_timing, s, q, tp, P);
     if (!tr.ok()) {
       const std::size_t i =

@@ -156,6 +156,11 @@ void check_trajectory(const JointTrajectory& tr) {
       throw ArgumentError("execution.trajectory: expected finite values, got NaN/inf at sample " +
                           std::to_string(k));
   }
+  for (std::size_t k = 0; k < tr.tare_t.size(); ++k)
+    if (!std::isfinite(tr.tare_t[k]) || (k > 0 && !(tr.tare_t[k] > tr.tare_t[k - 1])))
+      throw ArgumentError(
+          "execution.trajectory.tare_t: expected finite, strictly increasing times, got " +
+          std::to_string(tr.tare_t[k]) + " at entry " + std::to_string(k));
 }
 
 // Velocities by finite differences (central inside, one-sided at the ends) when none are given.
@@ -521,6 +526,11 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     estimator.emplace(Payload{m->body_mass[c.tool], vec3_at(m->body_ipos + 3 * c.tool)},
                       vec3_at(m->opt.gravity), params.sensor.tare_time);
   }
+  // The plan's stops in free air after the first tare (which the start takes anyway).
+  std::size_t next_tare = 0;
+  while (next_tare < trajectory.tare_t.size() &&
+         trajectory.tare_t[next_tare] < t0 + params.sensor.tare_time)
+    ++next_tare;
   const std::size_t sample_every =
       std::max<std::size_t>(1, static_cast<std::size_t>(std::llround(params.sensor.period / h)));
   Wrench load_W, reading_E;
@@ -865,6 +875,11 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
       const Mat3 R_WE = mat3_at(d->site_xmat + 9 * c.force_site);
       reading_E = sensor->sample(
           {vec3_at(d->sensordata + c.force_adr), vec3_at(d->sensordata + c.torque_adr)});
+      // Where the plan stops the arm in free air the controller zeroes the sensor again.
+      if (next_tare < trajectory.tare_t.size() && t + 1e-12 >= trajectory.tare_t[next_tare]) {
+        estimator->retare(t_sim);
+        ++next_tare;
+      }
       const bool was_tared = estimator->tared();
       load_W = estimator->update(reading_E, R_WE, t_sim);
       // A sensor-bias drill: the zero steps right after the tare, unknown to the controller.

@@ -96,12 +96,19 @@ Wrench LoadEstimator::update(const Wrench& reading_E, const Mat3& R_WE, double t
       sum_.torque += tau;
       ++n_;
     }
-    if (t + 1e-12 < tare_time_) return {};
+    if (t + 1e-12 < tare_start_ + tare_time_) return {};
     if (n_ > 0) tare_ = {sum_.force / n_, sum_.torque / n_};
     tared_ = true;
   }
   // The reading changes by minus the load on the tool.
   return {-(R_WE * (f - tare_.force)), -(R_WE * (tau - tare_.torque))};
+}
+
+void LoadEstimator::retare(double t) {
+  tare_start_ = t;
+  tared_ = false;
+  sum_ = {};
+  n_ = 0;
 }
 
 }  // namespace flashtwin::sim

@@ -198,3 +198,27 @@ TEST(Readers, PlyMeshesAreReadByOurOwnParser) {
     EXPECT_NE(std::string(e.what()).find("face 0"), std::string::npos) << e.what();
   }
 }
+
+// The plan stops in free air before the finishing pass (for the sensor's zero) by default when
+// the controller reads the F/T sensor for the tool's position, not with the oracle
+// compensation; the scenario's planning block decides when it says so, and a non-boolean is a
+// config error naming the key.
+TEST(Readers, StopsInFreeAirFollowWhetherTheControllerReadsTheSensor) {
+  const std::string path = ftest::source_path("scenarios/default.yaml");
+  EXPECT_FALSE(pipeline::load_scenario(path).grind.retare_before_finish);
+  EXPECT_TRUE(pipeline::load_scenario(path, {"execution.compensation=sensor"}).grind.retare_before_finish);
+  EXPECT_TRUE(
+      pipeline::load_scenario(path, {"execution.force_control.enabled=true"}).grind.retare_before_finish);
+  EXPECT_FALSE(pipeline::load_scenario(path, {"execution.compensation=sensor",
+                                              "planning.retare_before_finish=false"})
+                   .grind.retare_before_finish);
+  const auto sc = pipeline::load_scenario(path, {"planning.retare_before_finish=true", "planning.retare_length=0.05"});
+  EXPECT_TRUE(sc.grind.retare_before_finish);
+  EXPECT_EQ(sc.grind.retare_length, 0.05);
+  try {
+    pipeline::load_scenario(path, {"planning.retare_before_finish=often"});
+    ADD_FAILURE() << "a non-boolean was accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("retare_before_finish"), std::string::npos) << e.what();
+  }
+}

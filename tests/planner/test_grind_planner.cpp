@@ -991,6 +991,7 @@ TEST(GrindPlanner, FinHigherThanDepthOfCutGivesRoughingPassesThenAFinishingPass)
   P.max_depth_of_cut = 0.002;
   P.finish_depth = 0.0003;
   P.overrun = 0;  // pass lengths exactly the line's
+  P.retare_before_finish = false;  // a link before the finishing pass too (the stop in free air: below)
   GrindPath path = wall_line(-0.05, 0.05, 0.005);
   path.fin_height = 3 * P.max_depth_of_cut + P.finish_depth;
   const GrindResult r = plan_grind(robot, X_BC, path, P);
@@ -1065,6 +1066,116 @@ TEST(GrindPlanner, FinHigherThanDepthOfCutGivesRoughingPassesThenAFinishingPass)
   ASSERT_EQ(r3.passes, 4);
   EXPECT_NEAR(r3.pass_offsets[0], 0.0033, 1e-15);
   EXPECT_NEAR(r3.pass_offsets[1], 0.0018, 1e-15);
+}
+
+// Before the finishing pass the burr leaves the part and stops in free air, so a controller
+// that reads a flange F/T sensor can zero it again (the finishing pass sets the wall; a
+// sensor's drift over the roughing passes would move it by ≈0.1 mm): the lead-out, a lift at
+// the approach feed until the tip is 2 mm above the fin plane, a step across in the air to
+// above the finishing pass's start, the plunge at the plunge feed and the lead-in.
+TEST(GrindPlanner, FinishingPassStartsFromAStopInFreeAir) {
+  const RobotModel robot = ftest::ft6();
+  const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
+  GrindParams P = flush();
+  P.lead_clearance = 0.5e-3;
+  P.overrun = 0;
+  ASSERT_TRUE(P.retare_before_finish);  // the default
+  GrindPath path = wall_line(-0.05, 0.05, 0.005);
+  path.fin_height = P.max_depth_of_cut + P.finish_depth;  // one roughing pass, the finishing pass
+  const GrindResult r = plan_grind(robot, X_BC, path, P);
+  ASSERT_TRUE(r.ok()) << r.message;
+  ASSERT_EQ(r.passes, 2);
+  const double rad = robot.tool.radius;
+  const double tip = P.tip_depth.value_or(robot.tool.length / 2);
+  const double up = std::min(P.approach_distance, tip + 0.002);
+  // approach (air), plunge, lead-in, cut 0, lead-out, lift, across, plunge, lead-in, cut 1,
+  // lead-out, lift
+  const SampleKind A = SampleKind::kApproach, K = SampleKind::kCut, R = SampleKind::kRetract;
+  const std::vector<SampleKind> kinds = {A, A, A, K, R, R, A, A, A, K, R, R};
+  ASSERT_EQ(r.segments.size(), kinds.size());
+  for (std::size_t k = 0; k < kinds.size(); ++k) {
+    EXPECT_EQ(r.segments[k].kind, kinds[k]) << k;
+    if (k > 0) {
+      EXPECT_EQ(r.segments[k - 1].last_sample, r.segments[k].first_sample) << k;
+    }
+  }
+  const auto p = [&](std::size_t i) { return r.samples[i].X_CT.translation(); };
+  // The fin plane is z = 0 (wall_line); the stop: lifted by `up` off the roughing pass's end,
+  // the lead clearance off its offset.
+  const std::size_t stop = r.segments[5].last_sample;
+  EXPECT_NEAR(p(stop).z() - p(r.segments[4].last_sample).z(), up, 1e-12);
+  EXPECT_NEAR(-p(stop).x(), rad + r.pass_offsets[0] + 0.5e-3, 1e-12);
+  EXPECT_EQ(r.segments[5].feed, P.approach_feed);
+  // Across in the air, to the lead clearance off the finishing offset, at the approach feed.
+  const std::size_t above = r.segments[6].last_sample;
+  EXPECT_NEAR(p(above).z(), p(stop).z(), 1e-12);
+  EXPECT_NEAR(-p(above).x(), rad + 0.5e-3, 1e-12);
+  EXPECT_NEAR(p(above).y(), p(stop).y(), 1e-12);
+  EXPECT_EQ(r.segments[6].feed, P.approach_feed);
+  // Down to where the finishing pass starts, then the radial lead-in. The roughing pass left
+  // 0.3 mm of fin, within the 0.5 mm lead clearance, so the descent is in the air: at the
+  // approach feed, not the plunge feed.
+  EXPECT_EQ(r.segments[7].feed, P.approach_feed);
+  EXPECT_EQ(r.segments[1].feed, P.plunge_feed);
+  EXPECT_NEAR(p(r.segments[7].last_sample).z(), p(r.segments[3].last_sample).z(), 1e-12);
+  EXPECT_NEAR(-p(r.segments[8].last_sample).x(), rad, 1e-12);
+  // The finishing pass runs back over the line from where the roughing pass ended.
+  EXPECT_NEAR((p(r.segments[9].first_sample) - p(r.segments[3].last_sample)).y(), 0, 1e-12);
+  EXPECT_EQ(r.segments[9].feed, P.feed);
+  expect_single_branch(robot, r, P.max_joint_jump);
+  expect_trajectory_sound(robot, r);
+  // The stop is a rest: the timed motion's speed is zero at the end of the lift.
+  const Vector6& dq = r.trajectory.dq[r.segments[5].last_step];
+  EXPECT_LT(dq.norm(), 1e-9);
+  // One pass alone needs no stop; switched off, a link steps in at the end as before.
+  path.fin_height = 0;
+  EXPECT_EQ(plan_grind(robot, X_BC, path, P).segments.size(), 6u);
+  path.fin_height = P.max_depth_of_cut + P.finish_depth;
+  P.retare_before_finish = false;
+  const GrindResult l = plan_grind(robot, X_BC, path, P);
+  ASSERT_TRUE(l.ok()) << l.message;
+  EXPECT_EQ(l.segments.size(), 8u);
+  EXPECT_EQ(l.segments[4].kind, SampleKind::kLink);
+  EXPECT_LT(l.total_time, r.total_time);
+  // A finishing pass longer than retare_length stops again on the way (here at 40 and 80 mm of
+  // the 100 mm line; not again within 10 mm of its end) and goes on from the same point.
+  P.retare_before_finish = true;
+  P.retare_length = 0.04;
+  const GrindResult c = plan_grind(robot, X_BC, path, P);
+  ASSERT_TRUE(c.ok()) << c.message;
+  std::vector<const GrindSegment*> finish;
+  for (const GrindSegment& g : c.segments)
+    if (g.kind == SampleKind::kCut && g.pass == 1) finish.push_back(&g);
+  ASSERT_EQ(finish.size(), 3u);
+  double length = 0;
+  for (std::size_t j = 0; j < finish.size(); ++j) {
+    const Vec3 a = c.samples[finish[j]->first_sample].X_CT.translation();
+    const Vec3 b = c.samples[finish[j]->last_sample].X_CT.translation();
+    EXPECT_NEAR(-a.x(), rad, 1e-12);
+    length += (b - a).norm();
+    if (j > 0) {
+      const Vec3 stopped = c.samples[finish[j - 1]->last_sample].X_CT.translation();
+      EXPECT_LT((a - stopped).norm(), 1e-12) << j;
+      EXPECT_NEAR((b - a).norm(), j == 1 ? 0.04 : 0.02, 0.001) << j;
+      // In between: up in the air by the plunge height.
+      double top = -1;
+      for (std::size_t i = finish[j - 1]->last_sample; i <= finish[j]->first_sample; ++i)
+        top = std::max(top, c.samples[i].X_CT.translation().z() - stopped.z());
+      EXPECT_NEAR(top, up, 1e-12) << j;
+    }
+  }
+  EXPECT_NEAR(length, 0.1, 1e-9);
+  // The pieces come to rest on the wall and start from it with the feed ramped over at least
+  // retare_ramp_time (the process force follows the feed; the sensor reads it late).
+  for (const GrindSegment* g : finish) {
+    EXPECT_EQ(g->ramp_time, P.retare_ramp_time);
+    std::size_t up_to_feed = g->first_step;
+    while (up_to_feed < g->last_step && c.trajectory.sdot[up_to_feed] < 0.99 * g->feed) ++up_to_feed;
+    EXPECT_GE(c.trajectory.t[up_to_feed] - c.trajectory.t[g->first_step], 0.9 * P.retare_ramp_time);
+  }
+  // Without the stops on the way, the finishing pass ramps as fast as the timing allows.
+  EXPECT_EQ(r.segments[9].ramp_time, 0.0);
+  expect_trajectory_sound(robot, c);
 }
 
 TEST(GrindPlanner, LeadAndTiltGeometry) {

@@ -710,6 +710,70 @@ TEST(Executor, ASensorZeroStepAfterTheTareIsReadAsLoad) {
               biased.tracking_max / mm, clean.tracking_max / mm, oracle.tracking_max / mm);
 }
 
+// Where the plan stops the arm in free air (JointTrajectory::tare_t) the controller zeroes the
+// sensor again: the drift since the start (here a fast 5 N/√s random walk) leaves the load
+// estimate, which is exactly zero while the new tare is taken. Without the stop the estimate
+// keeps the drift. Bad tare times are refused naming the field.
+TEST(Executor, AStopInFreeAirReZeroesTheSensorsDrift) {
+  const DefaultCell& cell = default_cell();
+  const Vector6 qa = cell.robot.home;
+  Vector6 qb = qa;
+  qb[0] += 0.05;
+  // Out and back, at rest at t = 4 s.
+  JointTrajectory tr = quintic(cell, qa, qb, 4.0, 0.01);
+  const JointTrajectory back = quintic(cell, qb, qa, 1.0, 0.01);
+  for (std::size_t k = 1; k < back.t.size(); ++k) {
+    tr.t.push_back(4.0 + back.t[k]);
+    tr.q.push_back(back.q[k]);
+    tr.dq.push_back(back.dq[k]);
+    tr.planned_tcp_W.push_back(back.planned_tcp_W[k]);
+  }
+  ExecParams p;
+  p.settle_time = 0.1;
+  p.log_decimation = 1;
+  p.sensor_seed = 11;
+  p.sensor.force_drift = 5;
+  p.compensation_source = CompensationSource::kSensor;
+  p.tcp_damping = 1000;
+  const ExecutionResult kept = execute_trajectory(*cell.model, tr, nullptr, ToolParams{}, ForceParams{}, p);
+  JointTrajectory stop = tr;
+  stop.tare_t = {4.0};
+  const ExecutionResult again = execute_trajectory(*cell.model, stop, nullptr, ToolParams{}, ForceParams{}, p);
+  ASSERT_EQ(kept.status, ExecStatus::kOk) << kept.message;
+  ASSERT_EQ(again.status, ExecStatus::kOk) << again.message;
+  ASSERT_EQ(kept.log.t.size(), again.log.t.size());
+  double zero_max = 0, kept_sum = 0, again_sum = 0;
+  int taring = 0, after = 0;
+  for (std::size_t k = 0; k < again.log.t.size(); ++k) {
+    const double t = again.log.t[k];
+    if (t > 4.003 && t < 4.019) {
+      zero_max = std::max(zero_max, again.log.load_force_W[k].norm());
+      ++taring;
+    }
+    if (t > 4.03 && t < 4.1) {
+      kept_sum += kept.log.load_force_W[k].norm();
+      again_sum += again.log.load_force_W[k].norm();
+      ++after;
+    }
+  }
+  ASSERT_GT(taring, 5);
+  ASSERT_GT(after, 20);
+  EXPECT_EQ(zero_max, 0.0);
+  EXPECT_GT(kept_sum / after, 8.0);
+  EXPECT_LT(again_sum, 0.3 * kept_sum);
+  std::printf("sensor drift 5 N/sqrt(s): load estimate after a stop in free air %.1f N (%.1f N "
+              "without the re-tare)\n",
+              again_sum / after, kept_sum / after);
+  JointTrajectory bad = tr;
+  bad.tare_t = {4.0, 0.5};
+  try {
+    execute_trajectory(*cell.model, bad, nullptr, ToolParams{}, ForceParams{}, p);
+    ADD_FAILURE() << "decreasing tare times accepted";
+  } catch (const ArgumentError& e) {
+    EXPECT_NE(std::string(e.what()).find("execution.trajectory.tare_t"), std::string::npos) << e.what();
+  }
+}
+
 // ---- Collisions of the robot with the cell (CellCollision, CollisionMonitor in the executor)
 
 namespace {

@@ -194,3 +194,37 @@ TEST(LoadEstimator, ATareTakenInContactLeavesTheLoadedReadingsOutAndTheStopSeesT
   EXPECT_LT((free_air.update(loaded, R, 0.03).force - F_W).norm(), 1e-9);
   EXPECT_LT((free_air.untared_force_W() - (F_W - R * offset_E)).norm(), 1e-9);
 }
+
+TEST(LoadEstimator, AReTareInFreeAirRemovesTheDriftSinceTheFirstAndKeepsTheTareWhenLoaded) {
+  // The zero drifts by 3 N between the tare at the start and a stop in free air before the
+  // finishing pass: until the re-tare the estimate carries the drift as a load; while the
+  // re-tare is taken the estimate is zero; after it the drift is gone. A re-tare whose readings
+  // are all loaded (the tool touching the part) keeps the previous tare.
+  const Payload payload{3.0, Vec3(0, 0, 0.1)};
+  const Vec3 g(0, 0, -9.81);
+  const Mat3 R = Eigen::AngleAxisd(0.4, Vec3(0, 1, 1).normalized()).toRotationMatrix();
+  const Wrench rest = payload_reading(payload, R, g);
+  const auto reading = [&](const Vec3& zero_E, const Vec3& load_W) {
+    return Wrench{rest.force + zero_E - R.transpose() * load_W, rest.torque};
+  };
+  LoadEstimator est(payload, g, 0.02);
+  const Vec3 zero0(2, -1, 0.5);
+  for (int k = 0; k <= 20; ++k) est.update(reading(zero0, Vec3::Zero()), R, 1e-3 * k);
+  ASSERT_TRUE(est.tared());
+  const Vec3 drift_E(0, 3, 0);
+  const Vec3 F_W(10, 0, -20);
+  // Before the re-tare: the drift reads as load (minus it, in {W}).
+  EXPECT_LT((est.update(reading(zero0 + drift_E, F_W), R, 100.0).force - (F_W - R * drift_E)).norm(), 1e-9);
+  est.retare(150.0);
+  EXPECT_FALSE(est.tared());
+  for (int k = 0; k < 20; ++k)
+    EXPECT_EQ(est.update(reading(zero0 + drift_E, Vec3::Zero()), R, 150.0 + 1e-3 * k).force, Vec3::Zero());
+  est.update(reading(zero0 + drift_E, Vec3::Zero()), R, 150.02);
+  ASSERT_TRUE(est.tared());
+  EXPECT_LT((est.update(reading(zero0 + drift_E, F_W), R, 200.0).force - F_W).norm(), 1e-9);
+  // A re-tare in contact (300 N): every reading is left out, the last tare stays.
+  est.retare(250.0);
+  for (int k = 0; k <= 20; ++k) est.update(reading(zero0 + drift_E, Vec3(0, 300, 0)), R, 250.0 + 1e-3 * k);
+  ASSERT_TRUE(est.tared());
+  EXPECT_LT((est.update(reading(zero0 + drift_E, F_W), R, 260.0).force - F_W).norm(), 1e-9);
+}

@@ -63,6 +63,24 @@ struct GrindParams {
   /// whole cutter cross-section of fin per millimetre.
   double plunge_feed = 0.003;
   double approach_distance = 0.03;  ///< approach/retract height along the fin normal [m]
+  /// Before the finishing pass of a path with roughing passes the burr leaves the part (the
+  /// lead-out, a lift until its tip is 2 mm above the fin plane), stops there in free air and
+  /// comes back (the plunge and the lead-in), instead of stepping in at the path's end: a
+  /// controller that estimates the load from a flange F/T sensor re-zeroes it there, so the
+  /// pass that sets the wall sees only the sensor's drift since (a plate's passes otherwise run
+  /// 100–300 s in the material, ≈3 N of drift, ≈0.08 mm against the arm's ≈40 N/mm). The
+  /// executor gets these stops as tare times (sim::JointTrajectory::tare_t).
+  bool retare_before_finish = true;
+  /// With retare_before_finish, a longer finishing pass stops in free air again after each
+  /// retare_length of path (the lead-out, the lift, the zero, down again at the same path
+  /// sample), none within a quarter of it of the pass's end [m]; 0: only before the pass.
+  double retare_length = 0.1;
+  /// The pieces of a finishing pass split by such stops come to rest on the wall and start from
+  /// it: their feed ramps up and down over at least this long [s] (the S-curve's jerk and
+  /// acceleration lowered to fit). The process force follows the feed, and a controller that
+  /// reads it from the sensor a few milliseconds late lets the arm spring into the wall when it
+  /// falls fast (default plate 5019: 75 N gone in 60 ms put the burr 0.1 mm into the wall).
+  double retare_ramp_time = 0.5;
   /// Lead-in/lead-out [m]: the approach comes down this far off the first pass's wall offset
   /// and steps in radially; the last pass steps off as far before the retract, so the burr
   /// never plunges or lifts along the wall it grinds (in a hole at most to the hole's centre).
@@ -186,6 +204,9 @@ struct GrindSegment {
   std::size_t first_sample = 0, last_sample = 0;  ///< inclusive; neighbours share a sample
   std::size_t first_step = 0, last_step = 0;      ///< inclusive trajectory sample indices
   double feed = 0;                                ///< [m/s]
+  /// [s] the ramps from and to rest take at least this long (0: as the timing's own jerk and
+  /// acceleration bounds give them)
+  double ramp_time = 0;
 };
 
 enum class GrindStatus {

@@ -62,6 +62,9 @@ struct JointTrajectory {
                             ///< finite differences of q)
   /// Planned tool poses X_WT per sample (shape N) for the tracking metrics, or empty (no tracking).
   std::vector<Pose> planned_tcp_W;
+  /// [s] times (increasing, on the clock of t) where the plan stops the arm in free air: the
+  /// controller zeroes its F/T sensor over sensor.tare_time from each, as it does at the start.
+  std::vector<double> tare_t;
 };
 
 /// Admittance force control along the sensed contact normal.

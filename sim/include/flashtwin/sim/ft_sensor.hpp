@@ -18,7 +18,8 @@
 // sensor computes it: minus (reading − the payload's static wrench at the flange's orientation
 // (load data: mass and centre of mass, gravity in {W}) − the tare). The tare is the mean of
 // (reading − payload) over the first `tare_time` of a motion, which starts at rest in free air
-// (the sensor zeroed before each path, as cells do). The payload's inertial forces are not
+// (the sensor zeroed before each path, as cells do), and again wherever the plan stops the arm
+// in free air (retare). The payload's inertial forces are not
 // removed (at grinding feeds they are below the sensor's noise).
 //
 // Defaults: a 6-axis strain-gauge sensor sized for robotic grinding (process forces up to the
@@ -104,6 +105,10 @@ class LoadEstimator {
   /// more than kTareLimit off the payload's is a loaded sensor (the tool touching something) and
   /// is left out of the tare; with no reading left the tare is zero.
   Wrench update(const Wrench& reading_E, const Mat3& R_WE, double t);
+  /// Zero the sensor again over tare_time from motion time t [s] (the arm stopped in free air):
+  /// the readings then replace the tare; until it is taken update() returns zero. With no
+  /// reading within kTareLimit the previous tare stays.
+  void retare(double t);
   bool tared() const { return tared_; }
   /// The latest reading less the payload, untared, {W}: what a protective stop compares with
   /// its limit (a tare taken in contact cannot hide a collision).
@@ -114,6 +119,7 @@ class LoadEstimator {
   Payload payload_;
   Vec3 g_W_;
   double tare_time_;
+  double tare_start_ = 0;  ///< [s] motion time the current tare window opened
   Wrench sum_, tare_;
   Vec3 untared_W_ = Vec3::Zero();
   int n_ = 0;
