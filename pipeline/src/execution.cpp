@@ -100,8 +100,9 @@ Motion motion_of(const PlannedPath& plan) {
   m.trajectory.dq = g.trajectory.dq;
   m.tcp_B = g.tcp_B;
   m.tool_radius = g.tool_radius;
-  // Each approach starts at rest in free air (the first at the motion's start, a later one
-  // where the plan left the part before its finishing pass): the controller tares there.
+  // Each run of approach segments starts at rest in free air (the first at the motion's start,
+  // later ones where the plan left the part before its finishing pass and on the way through
+  // it, GrindParams::retare_before_finish): the controller tares there.
   for (std::size_t i = 0; i < g.segments.size(); ++i)
     if (g.segments[i].kind == planner::SampleKind::kApproach &&
         (i == 0 || g.segments[i - 1].kind != planner::SampleKind::kApproach))

@@ -1070,10 +1070,10 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   check_param(std::abs(P.tilt) < M_PI / 2, "tilt", "|tilt| < pi/2 [rad]", P.tilt);
   check_param(P.max_depth_of_cut > 0 && std::isfinite(P.max_depth_of_cut), "max_depth_of_cut",
               "> 0 [m]", P.max_depth_of_cut);
-  check_param(P.retare_length >= 0 && std::isfinite(P.retare_length), "retare_length",
-              ">= 0 [m]", P.retare_length);
-  check_param(P.retare_ramp_time >= 0 && P.retare_ramp_time <= 10, "retare_ramp_time",
-              "0..10 [s]", P.retare_ramp_time);
+  check_param(P.retare_length >= 0 && std::isfinite(P.retare_length), "retare_length", ">= 0 [m]",
+              P.retare_length);
+  check_param(P.retare_ramp_time >= 0 && P.retare_ramp_time <= 10, "retare_ramp_time", "0..10 [s]",
+              P.retare_ramp_time);
   check_param(P.finish_depth >= 0 && P.finish_depth <= 0.01, "finish_depth", "0..0.01 [m]",
               P.finish_depth);
   check_param(P.roughing_feed > 0 && std::isfinite(P.roughing_feed), "roughing_feed", "> 0 [m/s]",
@@ -1373,10 +1373,10 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   // approach feed.
   const double plunge_height = std::min(P.approach_distance, tip_depth + 0.002);
   // Approach of `pass` at its path sample k: down along the fin normal from `height` above
-  // it, `clear` off its wall offset, then the lead-in. `from_last`: the top is the last sample
-  // so far (pushed by the move before), else it is pushed here as the motion's first sample.
-  // `plunge_feed`: the feed of the last stretch, through the fin (the air above it at the
-  // approach feed).
+  // it, the lead clearance (clearance(e)) off its wall offset e, then the lead-in. `from_last`: the
+  // top is the last sample so far (pushed by the move before), else it is pushed here as the
+  // motion's first sample. `plunge_feed`: the feed of the last stretch, through the fin (the air
+  // above it at the approach feed).
   const auto come_down = [&](int pass, std::size_t k, double height, bool from_last,
                              double plunge_feed) {
     const double e = res.pass_offsets[static_cast<std::size_t>(pass)];
@@ -1431,9 +1431,9 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
   // up out of the part from the last sample so far (path sample `from_k` of its pass) to the
   // plunge height, where the burr's tip is 2 mm above the fin plane and the arm rests (the
   // controller zeroes its sensor there), a step across in the air to above path sample `k` of
-  // `pass`, `clear` off its offset, and down again with the lead-in. Every pass before has cut
-  // the fin to within the lead clearance of the wall offset, so the descent is in the air: at
-  // the approach feed.
+  // `pass`, the lead clearance off its offset, and down again with the lead-in. Where the pass
+  // before cut the fin to within that clearance (finish_depth < lead_clearance) the descent is
+  // in the air, at the approach feed; else it plunges at the plunge feed.
   const auto stop_in_air = [&](std::size_t from_k, int pass, std::size_t k) {
     lift_off(from_k, plunge_height);
     const Geo top = C.geo.back();

@@ -526,8 +526,10 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
     estimator.emplace(Payload{m->body_mass[c.tool], vec3_at(m->body_ipos + 3 * c.tool)},
                       vec3_at(m->opt.gravity), params.sensor.tare_time);
   }
-  // The plan's stops in free air after the first tare (which the start takes anyway).
+  // The plan's stops in free air after the first tare (which the start takes anyway); entries
+  // before t0 + tare_time are that first tare.
   std::size_t next_tare = 0;
+  bool stepped = false;  // the sensor-bias drill's step is in
   while (next_tare < trajectory.tare_t.size() &&
          trajectory.tare_t[next_tare] < t0 + params.sensor.tare_time)
     ++next_tare;
@@ -882,8 +884,12 @@ ExecutionResult execute_trajectory(const mjModel& model, const JointTrajectory& 
       }
       const bool was_tared = estimator->tared();
       load_W = estimator->update(reading_E, R_WE, t_sim);
-      // A sensor-bias drill: the zero steps right after the tare, unknown to the controller.
-      if (!was_tared && estimator->tared()) sensor->shift_zero(params.sensor_step_E);
+      // A sensor-bias drill: the zero steps right after the motion's first tare, unknown to the
+      // controller (a later tare in free air takes a step within kTareLimit out again).
+      if (!was_tared && estimator->tared() && !stepped) {
+        sensor->shift_zero(params.sensor_step_E);
+        stepped = true;
+      }
       if (estimator->tared() && in_contact) {
         load_err_sq += (load_W.force - F_W).squaredNorm();
         ++load_err_n;

@@ -206,13 +206,15 @@ TEST(Readers, PlyMeshesAreReadByOurOwnParser) {
 TEST(Readers, StopsInFreeAirFollowWhetherTheControllerReadsTheSensor) {
   const std::string path = ftest::source_path("scenarios/default.yaml");
   EXPECT_FALSE(pipeline::load_scenario(path).grind.retare_before_finish);
-  EXPECT_TRUE(pipeline::load_scenario(path, {"execution.compensation=sensor"}).grind.retare_before_finish);
   EXPECT_TRUE(
-      pipeline::load_scenario(path, {"execution.force_control.enabled=true"}).grind.retare_before_finish);
-  EXPECT_FALSE(pipeline::load_scenario(path, {"execution.compensation=sensor",
-                                              "planning.retare_before_finish=false"})
+      pipeline::load_scenario(path, {"execution.compensation=sensor"}).grind.retare_before_finish);
+  EXPECT_TRUE(pipeline::load_scenario(path, {"execution.force_control.enabled=true"})
+                  .grind.retare_before_finish);
+  EXPECT_FALSE(pipeline::load_scenario(
+                   path, {"execution.compensation=sensor", "planning.retare_before_finish=false"})
                    .grind.retare_before_finish);
-  const auto sc = pipeline::load_scenario(path, {"planning.retare_before_finish=true", "planning.retare_length=0.05"});
+  const auto sc = pipeline::load_scenario(
+      path, {"planning.retare_before_finish=true", "planning.retare_length=0.05"});
   EXPECT_TRUE(sc.grind.retare_before_finish);
   EXPECT_EQ(sc.grind.retare_length, 0.05);
   try {

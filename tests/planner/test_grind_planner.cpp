@@ -991,7 +991,8 @@ TEST(GrindPlanner, FinHigherThanDepthOfCutGivesRoughingPassesThenAFinishingPass)
   P.max_depth_of_cut = 0.002;
   P.finish_depth = 0.0003;
   P.overrun = 0;  // pass lengths exactly the line's
-  P.retare_before_finish = false;  // a link before the finishing pass too (the stop in free air: below)
+  // A link before the finishing pass too (the stop in free air instead: the next test).
+  P.retare_before_finish = false;
   GrindPath path = wall_line(-0.05, 0.05, 0.005);
   path.fin_height = 3 * P.max_depth_of_cut + P.finish_depth;
   const GrindResult r = plan_grind(robot, X_BC, path, P);
@@ -1072,14 +1073,15 @@ TEST(GrindPlanner, FinHigherThanDepthOfCutGivesRoughingPassesThenAFinishingPass)
 // that reads a flange F/T sensor can zero it again (the finishing pass sets the wall; a
 // sensor's drift over the roughing passes would move it by ≈0.1 mm): the lead-out, a lift at
 // the approach feed until the tip is 2 mm above the fin plane, a step across in the air to
-// above the finishing pass's start, the plunge at the plunge feed and the lead-in.
+// above the finishing pass's start, the descent (in the air: at the approach feed) and the
+// lead-in.
 TEST(GrindPlanner, FinishingPassStartsFromAStopInFreeAir) {
   const RobotModel robot = ftest::ft6();
   const Pose X_BC = translation(Vec3(0.7, 0, -0.15));
   GrindParams P = flush();
   P.lead_clearance = 0.5e-3;
   P.overrun = 0;
-  ASSERT_TRUE(P.retare_before_finish);  // the default
+  P.retare_before_finish = true;  // (off by default: a scenario turns it on for the sensor)
   GrindPath path = wall_line(-0.05, 0.05, 0.005);
   path.fin_height = P.max_depth_of_cut + P.finish_depth;  // one roughing pass, the finishing pass
   const GrindResult r = plan_grind(robot, X_BC, path, P);
@@ -1169,9 +1171,13 @@ TEST(GrindPlanner, FinishingPassStartsFromAStopInFreeAir) {
   // retare_ramp_time (the process force follows the feed; the sensor reads it late).
   for (const GrindSegment* g : finish) {
     EXPECT_EQ(g->ramp_time, P.retare_ramp_time);
-    std::size_t up_to_feed = g->first_step;
-    while (up_to_feed < g->last_step && c.trajectory.sdot[up_to_feed] < 0.99 * g->feed) ++up_to_feed;
-    EXPECT_GE(c.trajectory.t[up_to_feed] - c.trajectory.t[g->first_step], 0.9 * P.retare_ramp_time);
+    std::size_t up = g->first_step, down = g->last_step;
+    while (up < g->last_step && c.trajectory.sdot[up] < 0.99 * g->feed) ++up;
+    while (down > g->first_step && c.trajectory.sdot[down] < 0.99 * g->feed) --down;
+    ASSERT_LT(up, down);  // the piece reaches its feed
+    const double ramp = 0.9 * P.retare_ramp_time;
+    EXPECT_GE(c.trajectory.t[up] - c.trajectory.t[g->first_step], ramp);
+    EXPECT_GE(c.trajectory.t[g->last_step] - c.trajectory.t[down], ramp);
   }
   // Without the stops on the way, the finishing pass ramps as fast as the timing allows.
   EXPECT_EQ(r.segments[9].ramp_time, 0.0);

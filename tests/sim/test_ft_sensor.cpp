@@ -214,17 +214,21 @@ TEST(LoadEstimator, AReTareInFreeAirRemovesTheDriftSinceTheFirstAndKeepsTheTareW
   const Vec3 drift_E(0, 3, 0);
   const Vec3 F_W(10, 0, -20);
   // Before the re-tare: the drift reads as load (minus it, in {W}).
-  EXPECT_LT((est.update(reading(zero0 + drift_E, F_W), R, 100.0).force - (F_W - R * drift_E)).norm(), 1e-9);
+  EXPECT_LT(
+      (est.update(reading(zero0 + drift_E, F_W), R, 100.0).force - (F_W - R * drift_E)).norm(),
+      1e-9);
   est.retare(150.0);
   EXPECT_FALSE(est.tared());
   for (int k = 0; k < 20; ++k)
-    EXPECT_EQ(est.update(reading(zero0 + drift_E, Vec3::Zero()), R, 150.0 + 1e-3 * k).force, Vec3::Zero());
+    EXPECT_EQ(est.update(reading(zero0 + drift_E, Vec3::Zero()), R, 150.0 + 1e-3 * k).force,
+              Vec3::Zero());
   est.update(reading(zero0 + drift_E, Vec3::Zero()), R, 150.02);
   ASSERT_TRUE(est.tared());
   EXPECT_LT((est.update(reading(zero0 + drift_E, F_W), R, 200.0).force - F_W).norm(), 1e-9);
   // A re-tare in contact (300 N): every reading is left out, the last tare stays.
   est.retare(250.0);
-  for (int k = 0; k <= 20; ++k) est.update(reading(zero0 + drift_E, Vec3(0, 300, 0)), R, 250.0 + 1e-3 * k);
+  for (int k = 0; k <= 20; ++k)
+    est.update(reading(zero0 + drift_E, Vec3(0, 300, 0)), R, 250.0 + 1e-3 * k);
   ASSERT_TRUE(est.tared());
   EXPECT_LT((est.update(reading(zero0 + drift_E, F_W), R, 260.0).force - F_W).norm(), 1e-9);
 }

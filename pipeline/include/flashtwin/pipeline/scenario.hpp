@@ -101,7 +101,7 @@ struct Faults {
   /// controller's tool data puts it (a tool calibrated wrong, a burr seated deeper in its collet).
   Vec3 tcp_offset_T = Vec3::Zero();
   /// `sensor_bias: {force: [N], torque: [N*m]}` in the flange frame {E}: a step in the F/T
-  /// sensor's zero right after each path's tare (a cable pulled, a thermal shock), which the
+  /// sensor's zero right after each path's first tare (a cable pulled, a thermal shock), which the
   /// controller reads as load.
   sim::Wrench sensor_bias_E;
   bool any() const {

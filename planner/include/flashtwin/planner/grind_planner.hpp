@@ -64,13 +64,17 @@ struct GrindParams {
   double plunge_feed = 0.003;
   double approach_distance = 0.03;  ///< approach/retract height along the fin normal [m]
   /// Before the finishing pass of a path with roughing passes the burr leaves the part (the
-  /// lead-out, a lift until its tip is 2 mm above the fin plane), stops there in free air and
-  /// comes back (the plunge and the lead-in), instead of stepping in at the path's end: a
-  /// controller that estimates the load from a flange F/T sensor re-zeroes it there, so the
-  /// pass that sets the wall sees only the sensor's drift since (a plate's passes otherwise run
-  /// 100–300 s in the material, ≈3 N of drift, ≈0.08 mm against the arm's ≈40 N/mm). The
-  /// executor gets these stops as tare times (sim::JointTrajectory::tare_t).
-  bool retare_before_finish = true;
+  /// lead-out, a lift by tip depth + 2 mm, capped by approach_distance: the tip 2 mm above the
+  /// fin plane), stops there in free air and comes back (the descent and the lead-in), instead
+  /// of stepping in at the path's end: a controller that estimates the load from a flange F/T
+  /// sensor re-zeroes it there, so the pass that sets the wall sees only the sensor's drift
+  /// since (a plate's passes otherwise run 100–300 s in the material, ≈3 N of drift, ≈0.08 mm
+  /// against the arm's ≈40 N/mm). Each such stop starts a run of kApproach segments, which
+  /// pipeline::motion_of hands the executor as tare times (sim::JointTrajectory::tare_t). Needs
+  /// approach_distance > 0. Limits: a path cut in one pass (fin height unknown or within
+  /// finish_depth) gets no stop; with lead_clearance 0 the stop is beside the wall, not off it.
+  /// Off by default (the scenario turns it on when the controller reads the sensor).
+  bool retare_before_finish = false;
   /// With retare_before_finish, a longer finishing pass stops in free air again after each
   /// retare_length of path (the lead-out, the lift, the zero, down again at the same path
   /// sample), none within a quarter of it of the pass's end [m]; 0: only before the pass.

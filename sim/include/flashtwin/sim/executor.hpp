@@ -62,8 +62,10 @@ struct JointTrajectory {
                             ///< finite differences of q)
   /// Planned tool poses X_WT per sample (shape N) for the tracking metrics, or empty (no tracking).
   std::vector<Pose> planned_tcp_W;
-  /// [s] times (increasing, on the clock of t) where the plan stops the arm in free air: the
-  /// controller zeroes its F/T sensor over sensor.tare_time from each, as it does at the start.
+  /// [s] times (strictly increasing, on the clock of t) where the plan stops the arm in free
+  /// air: the controller zeroes its F/T sensor over sensor.tare_time from each, as it does at
+  /// the start (entries before t.front() + sensor.tare_time are that first tare). The window
+  /// opens at the stop; the plan has no dwell, so it runs on into the next move.
   std::vector<double> tare_t;
 };
 
@@ -118,7 +120,9 @@ struct ExecParams {
   /// Fault drills (`faults:`), which the controller is not told. tcp_offset_T [m]: the burr
   /// stands this far from the TCP the controller's tool data gives, in {T} (a tool calibrated
   /// wrong, a burr seated deeper); the process model cuts with the burr where it stands.
-  /// sensor_step_E: a step in the F/T sensor's zero right after each motion's tare ({E}).
+  /// sensor_step_E: a step in the F/T sensor's zero right after the motion's first tare ({E});
+  /// a re-tare at a stop in free air (JointTrajectory::tare_t) takes a step of up to
+  /// LoadEstimator::kTareLimit out again, a larger one stays (its readings are refused).
   Vec3 tcp_offset_T = Vec3::Zero();
   Wrench sensor_step_E;
   ForceControlParams force_control;

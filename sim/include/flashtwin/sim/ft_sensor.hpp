@@ -101,7 +101,8 @@ class LoadEstimator {
   LoadEstimator(const Payload& payload, const Vec3& g_W, double tare_time)
       : payload_(payload), g_W_(g_W), tare_time_(tare_time) {}
   /// Feeds a reading taken at motion time t [s] with the flange at R_WE; returns the load on the
-  /// tool (force, torque about the flange) in {W}. Zero while taring (t < tare_time). A reading
+  /// tool (force, torque about the flange) in {W}. Zero while taring (t < the tare's start +
+  /// tare_time; the first starts at 0). A reading
   /// more than kTareLimit off the payload's is a loaded sensor (the tool touching something) and
   /// is left out of the tare; with no reading left the tare is zero.
   Wrench update(const Wrench& reading_E, const Mat3& R_WE, double t);
