@@ -1463,18 +1463,8 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
       stop_in_air(ps.size() - 1, pass, 0);
     } else if (pass > 0) {
       // Radial step-in from the previous pass's end to the next pass's start (same point).
-      const Geo end = C.geo.back();
-      const double de = end.extra - res.pass_offsets[static_cast<std::size_t>(pass)];
-      const auto m = static_cast<std::size_t>(std::max(1.0, std::ceil(de / P.spacing - 1e-9)));
-      const std::size_t first = C.geo.size() - 1;
-      for (std::size_t i = 1; i < m; ++i) {
-        Geo g = cut_geo(pass, 0);
-        g.kind = SampleKind::kLink;
-        g.extra = end.extra - de * static_cast<double>(i) / static_cast<double>(m);
-        C.geo.push_back(g);
-      }
-      segs.push_back({SampleKind::kLink, pass, first, C.geo.size(),
-                      contact_feed(P.feed, res.pass_offsets[static_cast<std::size_t>(pass)])});
+      radial(pass, 0, SampleKind::kLink, C.geo.back().extra,
+             res.pass_offsets[static_cast<std::size_t>(pass)], true);
     }
     const double feed = contact_feed(finishing ? P.feed : P.roughing_feed,
                                      res.pass_offsets[static_cast<std::size_t>(pass)]);
@@ -1488,12 +1478,13 @@ GrindResult plan_grind(const RobotModel& robot_in, const Pose& X_BC, const Grind
     std::size_t first = C.geo.size();
     double run = 0;  // path length since the pass (re)started [m]
     for (std::size_t k = 0; k < ps.size(); ++k) {
+      const Geo g = cut_geo(pass, k);
       if (k > 0) {
-        const double step = (cut_geo(pass, k).p - cut_geo(pass, k - 1).p).norm();
+        const double step = (g.p - C.geo.back().p).norm();
         run += step;
         left -= step;
       }
-      C.geo.push_back(cut_geo(pass, k));
+      C.geo.push_back(g);
       if (split && run >= P.retare_length && left > P.retare_length / 4) {
         segs.push_back({SampleKind::kCut, pass, first, C.geo.size() - 1, feed});
         stop_in_air(k, pass, k);
